@@ -1,0 +1,19 @@
+"""The modelling language: variables, predicates, transitions, abilities, resources, operations, specs, Model."""
+
+from .abilities import STANDARD_PHASES, Ability, Phase, ability, tracking
+from .actions import Assign, apply_all
+from .model import Model, ModelError, Problem
+from .operations import OPERATION_STATES, Operation, Specification, forbid, operation
+from .parser import ParseError, parse_action, parse_predicate
+from .predicates import FALSE, TRUE, And, Const, Eq, In, IsTrue, Ne, Not, Or, Predicate, Ref, all_of, any_of
+from .resource import Resource
+from .transitions import Transition, TransitionKind, automatic, deliberate, effect
+from .variables import BOOL, Domain, Kind, Value, Variable, command, estimated, measured
+
+__all__ = [
+    "BOOL", "FALSE", "OPERATION_STATES", "STANDARD_PHASES", "TRUE", "Ability", "And", "Assign", "Const", "Domain",
+    "Eq", "In", "IsTrue", "Kind", "Model", "ModelError", "Ne", "Not", "Operation", "Or", "ParseError", "Phase",
+    "Predicate", "Problem", "Ref", "Resource", "Specification", "Transition", "TransitionKind", "Value", "Variable",
+    "ability", "all_of", "any_of", "apply_all", "automatic", "command", "deliberate", "effect", "estimated", "forbid",
+    "measured", "operation", "parse_action", "parse_predicate", "tracking",
+]
