@@ -1,0 +1,75 @@
+"""The one driver interface every device implementation satisfies (emulate, sim and real alike).
+
+The hub runtime holds a `Driver` per resource and never knows which kind it holds:
+it calls `connect` once, then `read` at its rate, `write` when a command arrives,
+and `safe_state` when commands stop arriving. Values are keyed by the variable's
+short name (`run_m`, not `nr.run_m`), and use the model's domains (bools,
+enumeration names, small ints).
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from common.model import Value
+
+
+class DeviceUnavailable(Exception):
+    """The device does not answer (disconnected, timed out, protocol error)."""
+
+
+@dataclass
+class CheckResult:
+    name: str  # "device answers", "inputs read", "outputs read back", ...
+    ok: bool
+    detail: str = ""
+
+
+@dataclass
+class SelftestReport:
+    resource: str
+    checks: list[CheckResult] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return all(c.ok for c in self.checks)
+
+    def add(self, name: str, ok: bool, detail: str = "") -> None:
+        self.checks.append(CheckResult(name, ok, detail))
+
+
+class Driver(abc.ABC):
+    """A device behind a resource. Implementations must never block the event loop."""
+
+    resource: str  # the resource name in the model, e.g. "nr"
+
+    @abc.abstractmethod
+    async def connect(self) -> None:
+        """Start talking to the device; returns at once and keeps (re)connecting in the background."""
+
+    @abc.abstractmethod
+    async def close(self) -> None:
+        """Stop background work and release the device."""
+
+    @property
+    @abc.abstractmethod
+    def connected(self) -> bool:
+        """True while the device answers; stale values are never reported as fresh."""
+
+    @abc.abstractmethod
+    async def read(self) -> Mapping[str, Value]:
+        """The measured variables now. Raises DeviceUnavailable when the device does not answer."""
+
+    @abc.abstractmethod
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        """Drive the outputs to the command variables. Raises DeviceUnavailable when it cannot."""
+
+    @abc.abstractmethod
+    def safe_state(self) -> Mapping[str, Value]:
+        """The command values that are safe when the controller is silent."""
+
+    @abc.abstractmethod
+    async def selftest(self) -> SelftestReport:
+        """Device answers, inputs read, outputs read back where the device allows."""
