@@ -68,7 +68,8 @@ class Driver(abc.ABC):
 
     @abc.abstractmethod
     def safe_state(self) -> Mapping[str, Value]:
-        """The command values that are safe when the controller is silent."""
+        """The command values to apply when the controller is silent; a variable left out keeps its value
+        (a tool changer never drops its tool). Motion already under way is stopped by the driver."""
 
     @abc.abstractmethod
     async def selftest(self) -> SelftestReport:
