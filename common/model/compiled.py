@@ -5,6 +5,11 @@ The engine and the planner share this one execution semantics:
 * a *step* fires one transition (one outcome of an effect);
 * automatic transitions are urgent: after any step, the first enabled automatic
   transition (in model order) fires, until none is enabled (`close`).
+
+`automatic`, `deliberate` and `effects` hold the *ability* transitions (stage 2,
+what plans are made of). Operation transitions (stage 1: start and finish of
+planning operations) are kept apart in `operation_transitions`: the engine runs
+them, the planner never plans with them.
 """
 
 from __future__ import annotations
@@ -101,9 +106,12 @@ class CompiledModel:
             self._compile(n, t) for n, t in enumerate(model.transitions)
         )
         self.by_name = {t.name: t for t in self.transitions}
-        self.automatic = tuple(t for t in self.transitions if t.kind is TransitionKind.AUTOMATIC)
-        self.deliberate = tuple(t for t in self.transitions if t.kind is TransitionKind.DELIBERATE)
-        self.effects = tuple(t for t in self.transitions if t.kind is TransitionKind.EFFECT)
+        operation_names = {t.name for t in model.operation_transitions}
+        self.operation_transitions = tuple(t for t in self.transitions if t.name in operation_names)
+        abilities = tuple(t for t in self.transitions if t.name not in operation_names)
+        self.automatic = tuple(t for t in abilities if t.kind is TransitionKind.AUTOMATIC)
+        self.deliberate = tuple(t for t in abilities if t.kind is TransitionKind.DELIBERATE)
+        self.effects = tuple(t for t in abilities if t.kind is TransitionKind.EFFECT)
 
     def guard_of(self, transition: Transition) -> Predicate:
         """The full guard: the model's plus the synthesized one, if any."""
@@ -151,7 +159,7 @@ class CompiledModel:
     def close(
         self, state: State, disabled: Callable[[CompiledTransition], bool] | None = None
     ) -> tuple[State, list[CompiledTransition]]:
-        """Fire enabled automatic transitions, first in model order each time, until none is enabled."""
+        """Fire enabled automatic ability transitions, first in model order each time, until none is enabled."""
         fired: list[CompiledTransition] = []
         automatic = self.automatic
         while True:
