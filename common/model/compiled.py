@@ -59,10 +59,12 @@ def predicate_source(predicate: Predicate, index: Mapping[str, int]) -> str:
 
 
 def compile_predicate(predicate: Predicate, index: Mapping[str, int]) -> Callable[[State], bool]:
-    return eval(f"lambda s: {predicate_source(predicate, index)}")  # noqa: S307 - source generated above
+    return eval(f"lambda s: {predicate_source(predicate, index)}")
 
 
-def compile_assignments(assignments: Iterable[tuple[str, object]], index: Mapping[str, int]) -> Callable[[State], State]:
+def compile_assignments(
+    assignments: Iterable[tuple[str, object]], index: Mapping[str, int]
+) -> Callable[[State], State]:
     """A function returning the state after simultaneous assignment (right sides read the state before)."""
     parts = []
     for path, value in assignments:
@@ -70,7 +72,7 @@ def compile_assignments(assignments: Iterable[tuple[str, object]], index: Mappin
         parts.append(f"l[{index[path]}] = {rhs}")
     body = "; ".join(parts) if parts else "pass"
     namespace: dict[str, object] = {}
-    exec(f"def apply(s):\n    l = list(s); {body}\n    return tuple(l)", namespace)  # noqa: S102
+    exec(f"def apply(s):\n    l = list(s); {body}\n    return tuple(l)", namespace)
     return namespace["apply"]  # type: ignore[return-value]
 
 

@@ -125,9 +125,13 @@ class Model:
                     problems.append(Problem(v.path, f"variable of resource {r.name!r} must be named {r.name}.<name>"))
         for v in self._all_variables():
             if v.initial not in v.domain:
-                problems.append(Problem(v.path, f"initial value {v.initial!r} is outside its domain {v.domain.describe()}"))
+                problems.append(
+                    Problem(v.path, f"initial value {v.initial!r} is outside its domain {v.domain.describe()}")
+                )
+        operation_transitions = {t.name for t in self.operation_transitions}
         for t in self.transitions:
-            problems += self._check_predicate(t.name, t.guard, variables)
+            if t.name not in operation_transitions:  # those guards are the operations' pre and goal
+                problems += self._check_predicate(t.name, t.guard, variables)
             for outcome in t.outcomes:
                 for action in outcome:
                     problems += self._check_action(t, action, variables)

@@ -1,0 +1,180 @@
+"""The controller's decisions, without I/O: which operations run, which goals are planned for,
+when to replan, and what an unreachable goal does to its operation.
+
+`ControlCore` owns the global state tuple. The process around it (in-process runner or
+the Zenoh controller) feeds it measurements, calls `tick()`, runs `plan_request()` off
+the event loop, hands the result back with `adopt()`, and publishes what changed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+from common.model import Kind, Predicate, Value
+from common.model.compiled import CompiledModel, State
+
+from .engine import Engine, PlanProgress, TickResult
+from .planner import NoPlan, Plan, Planner
+
+ERROR_RETRY_S = 2.0
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """A snapshot to plan from; `generation` tells a late answer from a current one."""
+
+    generation: int
+    start: State
+    goals: dict[str, Predicate]
+    disabled: frozenset[str]
+
+
+@dataclass
+class ControlEvents:
+    replans: int = 0
+    plans: int = 0
+    no_plans: int = 0
+    abilities_started: int = 0
+    log: list[str] = field(default_factory=list)
+
+
+class ControlCore:
+    def __init__(self, compiled: CompiledModel, planner: Planner, clock: Callable[[], float] = time.monotonic) -> None:
+        self.compiled = compiled
+        self.model = compiled.model
+        self.planner = planner
+        self.engine = Engine(compiled)
+        self.clock = clock
+        self.state: State = compiled.initial()
+        self.requested: list[str] = []  # operations to start when their precondition holds
+        self.disabled: frozenset[str] = frozenset()
+        self.progress: PlanProgress | None = None
+        self.planned_goals: frozenset[str] = frozenset()
+        self.generation = 0
+        self.planning = False
+        self.need_plan_reason: str | None = "start"
+        self.errors: dict[str, tuple[str, float]] = {}  # operation -> (reason, since)
+        self.events = ControlEvents()
+        self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
+        self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
+
+    # --- inputs -------------------------------------------------------------------------
+    def request(self, *operations: str) -> None:
+        for name in operations:
+            if name not in self.op_index:
+                raise KeyError(f"no operation {name!r} in model {self.model.name!r}")
+            if name not in self.requested:
+                self.requested.append(name)
+
+    def ingest(self, values: Mapping[str, Value]) -> bool:
+        """Take measured values; True if anything changed."""
+        changed = {p: v for p, v in values.items() if self.state[self.measured_indices[p]] != v}
+        if changed:
+            self.state = self.compiled.with_values(self.state, changed)
+        return bool(changed)
+
+    def set_disabled(self, resources: frozenset[str]) -> None:
+        if resources != self.disabled:
+            self.disabled = resources
+            self._want_plan(f"resource health changed (disabled: {', '.join(sorted(resources)) or 'none'})")
+
+    def load(self, values: Mapping[str, Value]) -> None:
+        """Restore persisted or mirrored values of any kind (restart)."""
+        self.state = self.compiled.with_values(self.state, values)
+        self._want_plan("restored state")
+
+    # --- queries ------------------------------------------------------------------------
+    def op_state(self, name: str) -> str:
+        return str(self.state[self.op_index[name]])
+
+    def executing(self) -> list[str]:
+        return [n for n, i in self.op_index.items() if self.state[i] in ("executing", "error")]
+
+    def all_finished(self) -> bool:
+        return all(self.state[i] == "finished" for i in self.op_index.values())
+
+    def goals(self) -> dict[str, Predicate]:
+        now = self.clock()
+        goals = {}
+        for name in self.executing():
+            error = self.errors.get(name)
+            if error is not None and now - error[1] < ERROR_RETRY_S:
+                continue
+            goals[name] = self.model.operation_by_name[name].goal
+        return goals
+
+    # --- the loop -----------------------------------------------------------------------
+    def tick(self) -> TickResult:
+        result = self.engine.tick(self.state, requested=self.requested, progress=self.progress,
+                                  disabled=self.disabled)
+        self.state = result.state
+        self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
+        if result.replan is not None:
+            self._want_plan(result.replan)
+        if result.started or result.finished:
+            for name in result.finished:
+                self.errors.pop(name, None)
+        goals = frozenset(self.goals())
+        if goals != self.planned_goals:
+            self._want_plan("goals changed")
+        if self.progress is not None and self.progress.complete and goals == self.planned_goals and goals:
+            # Completed plan whose goals do not hold: the world moved on; plan again.
+            self._want_plan("plan complete but goals not reached")
+        return result
+
+    @property
+    def _deliberate_names(self) -> frozenset[str]:
+        names = getattr(self, "_deliberate_cache", None)
+        if names is None:
+            names = frozenset(t.name for t in self.compiled.deliberate)
+            self._deliberate_cache = names
+        return names
+
+    def _want_plan(self, reason: str) -> None:
+        if self.need_plan_reason is None:
+            self.need_plan_reason = reason
+        self.progress = None
+
+    def plan_request(self) -> PlanRequest | None:
+        """A planning job if one is due and none is under way."""
+        if self.planning or self.need_plan_reason is None:
+            return None
+        goals = self.goals()
+        self.generation += 1
+        self.planning = True
+        if self.need_plan_reason != "start" and goals:
+            self.events.replans += 1
+            self.events.log.append(f"replan: {self.need_plan_reason}")
+        self.need_plan_reason = None
+        return PlanRequest(self.generation, self.state, goals, self.disabled)
+
+    def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
+        if not request.goals:
+            return None
+        return self.planner.plan(request.start, request.goals, request.disabled)
+
+    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:
+        self.planning = False
+        if request.generation != self.generation or self.need_plan_reason is not None:
+            return  # the world changed while planning: a new request is already due
+        self.planned_goals = frozenset(request.goals)
+        if result is None:
+            self.progress = None
+            return
+        if isinstance(result, NoPlan):
+            self.events.no_plans += 1
+            now = self.clock()
+            for name in result.unreachable or tuple(request.goals):
+                self.errors[name] = (result.reason, now)
+                state_path = self.model.operation_by_name[name].state_path
+                self.state = self.compiled.with_values(self.state, {state_path: "error"})
+            self.events.log.append(f"no plan for {', '.join(result.unreachable)}: {result.reason}")
+            self._want_plan("planning without the unreachable goals")
+            self.progress = None
+            return
+        self.events.plans += 1
+        # Measurements that arrived while planning are matched against the plan's trace
+        # by the next tick, which asks again if the state has left it.
+        self.progress = PlanProgress(self.compiled, result)

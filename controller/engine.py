@@ -1,0 +1,198 @@
+"""The two-stage execution engine (DESIGN.md §4). Pure: no I/O, no clocks.
+
+One tick takes the latest state (measured values from hubs, estimated and command
+values owned by the controller) and returns the new state:
+
+* **stage 1** — planning operations: finished operations (goal holds) become
+  `finished` automatically; requested operations start when their precondition holds.
+* **stage 2** — abilities: automatic transitions fire to a fixpoint; a deliberate
+  transition fires only as a step of the current ability plan, once every earlier
+  plan step it depends on has been observed, and only where its guard (synthesized
+  guards included) holds. Effects are never applied here: they are observed.
+
+A plan is a shortest *sequence*, but it is executed as a trace: step j waits only
+for the earlier steps it conflicts with (one writes what the other reads or writes).
+Independent resources (the robot and the operator) therefore run in parallel while
+every dependent step keeps the plan's order. The state must stay on the plan's
+predicted trace; when it leaves it, or when the next step can no longer fire, the
+tick asks for a replan with the reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+from common.model import Kind, TransitionKind, Value
+from common.model.compiled import CompiledModel, CompiledTransition, State
+
+from .planner import Plan
+
+MAX_OPERATION_ROUNDS = 1000
+
+
+class PlanProgress:
+    """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
+
+    def __init__(self, compiled: CompiledModel, plan: Plan) -> None:
+        self.plan = plan
+        self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
+        self.post: list[tuple[tuple[int, Value], ...]] = []
+        self.depends: list[frozenset[int]] = []
+        last_writer: dict[int, int] = {}
+        readers_since_write: dict[int, list[int]] = {}
+        relevant: set[int] = set()
+        for j, t in enumerate(self.transitions):
+            after = plan.states[j + 1]
+            self.post.append(tuple((i, after[i]) for i in sorted(t.writes)))
+            deps: set[int] = set()
+            for i in t.reads | t.writes:
+                if i in last_writer:
+                    deps.add(last_writer[i])
+            for i in t.writes:
+                deps.update(readers_since_write.get(i, ()))
+                readers_since_write[i] = []
+                last_writer[i] = j
+            for i in t.reads - t.writes:
+                readers_since_write.setdefault(i, []).append(j)
+            deps.discard(j)
+            self.depends.append(frozenset(deps))
+            relevant |= t.reads | t.writes
+        self.relevant = tuple(sorted(relevant))
+        self.expected: dict[int, Value] = {i: plan.states[0][i] for i in self.relevant}
+        self.done: set[int] = set()
+
+    @property
+    def complete(self) -> bool:
+        return len(self.done) == len(self.transitions)
+
+    def ready(self, j: int) -> bool:
+        return j not in self.done and self.depends[j] <= self.done
+
+    def mark_done(self, j: int) -> None:
+        self.done.add(j)
+        for i, value in self.post[j]:
+            self.expected[i] = value
+
+    def observed(self, j: int, state: State) -> bool:
+        return all(state[i] == v for i, v in self.post[j])
+
+    def pending(self) -> Iterable[int]:
+        return (j for j in range(len(self.transitions)) if j not in self.done)
+
+    def next_step(self) -> int | None:
+        return next(iter(self.pending()), None)
+
+    def deviation(self, compiled: CompiledModel, state: State) -> str | None:
+        for i in self.relevant:
+            if state[i] != self.expected[i]:
+                return (f"{compiled.paths[i]} is {state[i]!r} but the plan expects {self.expected[i]!r} "
+                        f"(after {len(self.done)} of {len(self.transitions)} steps)")
+        return None
+
+
+@dataclass
+class TickResult:
+    state: State
+    fired: list[str] = field(default_factory=list)
+    changed_commands: dict[str, Value] = field(default_factory=dict)
+    started: list[str] = field(default_factory=list)
+    finished: list[str] = field(default_factory=list)
+    replan: str | None = None  # why the current plan cannot be followed
+
+
+class Engine:
+    def __init__(self, compiled: CompiledModel) -> None:
+        self.compiled = compiled
+        model = compiled.model
+        self.operations = model.operations
+        self.op_start = {op.name: compiled.by_name[f"{op.state_path}.start"] for op in model.operations}
+        self.op_finish = {op.name: compiled.by_name[f"{op.state_path}.finish"] for op in model.operations}
+        self.command_indices = tuple(compiled.index[p] for p in model.paths_of_kind(Kind.COMMAND))
+
+    def tick(
+        self,
+        state: State,
+        *,
+        requested: Sequence[str] = (),
+        progress: PlanProgress | None = None,
+        disabled: frozenset[str] = frozenset(),
+    ) -> TickResult:
+        before = state
+        result = TickResult(state)
+        self._stage_operations(result, requested, disabled)
+        self._stage_abilities(result, progress, disabled)
+        self._finish_operations(result)
+        result.changed_commands = {
+            self.compiled.paths[i]: result.state[i] for i in self.command_indices if result.state[i] != before[i]
+        }
+        return result
+
+    # --- stage 1 ----------------------------------------------------------------------
+    def _stage_operations(self, result: TickResult, requested: Sequence[str], disabled: frozenset[str]) -> None:
+        for _ in range(MAX_OPERATION_ROUNDS):
+            progressed = self._finish_operations(result)
+            for name in requested:
+                t = self.op_start[name]
+                if t.guard(result.state):
+                    result.state = t.outcomes[0](result.state)
+                    result.fired.append(t.name)
+                    result.started.append(name)
+                    progressed = True
+            if not progressed:
+                return
+
+    def _finish_operations(self, result: TickResult) -> bool:
+        progressed = False
+        for name, t in self.op_finish.items():
+            if t.guard(result.state):
+                result.state = t.outcomes[0](result.state)
+                result.fired.append(t.name)
+                result.finished.append(name)
+                progressed = True
+        return progressed
+
+    # --- stage 2 ----------------------------------------------------------------------
+    def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str]) -> None:
+        def is_disabled(t: CompiledTransition) -> bool:
+            return bool(t.resources & disabled)
+
+        state, fired = self.compiled.close(result.state, is_disabled if disabled else None)
+        result.fired += [t.name for t in fired]
+        if progress is not None:
+            while True:
+                self._observe(progress, state)
+                deviation = progress.deviation(self.compiled, state)
+                if deviation is not None:
+                    result.replan = f"the state left the plan: {deviation}"
+                    break
+                fired_one = False
+                for j in list(progress.pending()):
+                    t = progress.transitions[j]
+                    if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
+                        continue
+                    if not t.guard(state):
+                        step = progress.plan.steps[j]
+                        result.replan = f"the next step can no longer fire: {step}"
+                        break
+                    state = t.outcomes[0](state)
+                    result.fired.append(t.name)
+                    progress.mark_done(j)
+                    state, autos = self.compiled.close(state, is_disabled if disabled else None)
+                    result.fired += [a.name for a in autos]
+                    fired_one = True
+                if result.replan is not None or not fired_one:
+                    break
+        result.state = state
+
+    @staticmethod
+    def _observe(progress: PlanProgress, state: State) -> None:
+        """Mark effect and automatic steps done once their predecessors are done and their result shows."""
+        changed = True
+        while changed:
+            changed = False
+            for j in list(progress.pending()):
+                t = progress.transitions[j]
+                if t.kind is not TransitionKind.DELIBERATE and progress.ready(j) and progress.observed(j, state):
+                    progress.mark_done(j)
+                    changed = True

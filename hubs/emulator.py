@@ -1,0 +1,110 @@
+"""The model-driven emulator: the physical device is its resource's effect transitions.
+
+An enabled effect fires after a delay (scaled by `speed`); an effect with several
+outcomes picks one with a seeded random choice, so a nutrunner that fails with
+probability p is `failure={"nr": p}`. The emulator keeps no control state: it reads
+the command values it is given and writes measured values only.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from common.model import Model, Transition, TransitionKind, Value, apply_all
+
+# Seconds an effect takes at speed 1, by device type: the operator is slower than the robot.
+DEFAULT_DELAYS: dict[str, float] = {
+    "nutrunner": 0.25,
+    "ur": 0.3,
+    "rsp": 0.3,
+    "dock": 0.1,
+    "lift": 0.6,
+    "mir": 1.5,
+    "agv": 1.5,
+    "rfid": 0.8,
+    "camera": 0.1,
+    "operator": 1.0,
+}
+FALLBACK_DELAY = 0.2
+
+
+@dataclass
+class _Scheduled:
+    due: float
+    outcome: int
+
+
+class EffectEmulator:
+    def __init__(
+        self,
+        model: Model,
+        resources: Iterable[str],
+        *,
+        speed: float = 1.0,
+        seed: int = 0,
+        failure: Mapping[str, float] | None = None,
+        delays: Mapping[str, float] | None = None,
+    ) -> None:
+        if speed <= 0:
+            raise ValueError(f"speed must be positive, got {speed}")
+        self.model = model
+        self.resources = frozenset(resources)
+        unknown = self.resources - set(model.resource_by_name)
+        if unknown:
+            raise KeyError(f"model {model.name!r} has no resource {', '.join(sorted(unknown))}")
+        self.effects: tuple[Transition, ...] = tuple(
+            t for t in model.ability_transitions
+            if t.kind is TransitionKind.EFFECT and t.written() and self._owners(t) <= self.resources
+        )
+        self.speed = speed
+        self.random = random.Random(seed)
+        self.failure = dict(failure or {})
+        self.delays = dict(delays or {})
+        self.pending: dict[str, _Scheduled] = {}
+        self.paths = frozenset(p for t in self.effects for p in t.guard.paths() | t.written())
+
+    @staticmethod
+    def _owners(t: Transition) -> set[str]:
+        return {p.split(".", 1)[0] for p in t.written()}
+
+    def delay_of(self, t: Transition) -> float:
+        resource = next(iter(t.written())).split(".", 1)[0]
+        if resource in self.delays:
+            return self.delays[resource] / self.speed
+        device_type = self.model.resource_by_name[resource].device_type
+        return DEFAULT_DELAYS.get(device_type, FALLBACK_DELAY) / self.speed
+
+    def _choose(self, t: Transition) -> int:
+        if len(t.outcomes) == 1:
+            return 0
+        resource = next(iter(t.written())).split(".", 1)[0]
+        p_fail = self.failure.get(resource, 0.0)
+        if self.random.random() >= p_fail:
+            return 0  # the first outcome is the nominal one (torque reached)
+        return self.random.randrange(1, len(t.outcomes))
+
+    def step(self, state: Mapping[str, Value], now: float) -> dict[str, Value]:
+        """Schedule newly enabled effects, fire the due ones; returns the measured values that changed."""
+        changes: dict[str, Value] = {}
+        current = dict(state)
+        for t in self.effects:
+            enabled = t.guard.eval(current)
+            scheduled = self.pending.get(t.name)
+            if not enabled:
+                self.pending.pop(t.name, None)
+                continue
+            if scheduled is None:
+                self.pending[t.name] = _Scheduled(now + self.delay_of(t), self._choose(t))
+            elif scheduled.due <= now:
+                del self.pending[t.name]
+                after = apply_all(t.outcomes[scheduled.outcome], current)
+                for path in t.written():
+                    if after[path] != current[path]:
+                        changes[path] = after[path]
+                current = after
+        return changes
+
+    def next_due(self) -> float | None:
+        return min((s.due for s in self.pending.values()), default=None)
