@@ -1,0 +1,101 @@
+"""Emulate mode: the resource's own effect transitions stand in for the device.
+
+The emulator behind a `Driver` like any other: `write` sets the command variables,
+`read` returns the measured ones, and effects fire after their delays in a background
+task. Effects may depend on other resources (the tool changer sees where the robot is):
+`inputs` names those variables and the hub feeds them through `observe`, from the
+states the other hubs publish.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Mapping
+
+from common.model import Model, Value
+
+from ..emulator import EffectEmulator
+from .base import Driver, SelftestReport
+
+IDLE_POLL_S = 0.02
+
+
+class EmulatedDriver(Driver):
+    def __init__(self, model: Model, resource: str, *, speed: float = 1.0, seed: int = 0,
+                 failure_probability: float = 0.0, delay: float | None = None) -> None:
+        self.resource = resource
+        self.model = model
+        spec = model.resource_by_name[resource]
+        self.emulator = EffectEmulator(
+            model, [resource], speed=speed, seed=seed,
+            failure={resource: failure_probability}, delays={resource: delay} if delay is not None else None,
+        )
+        self.values: dict[str, Value] = {v.path: v.initial for v in spec.variables}  # type: ignore[misc]
+        self.measured = tuple(v.path for v in spec.measured)
+        self.commands = tuple(v.path for v in spec.commands)
+        own = set(self.values)
+        self.inputs = frozenset(p for p in self.emulator.paths if p not in own)
+        for path in self.inputs:
+            self.values[path] = model.var(path).initial  # type: ignore[assignment]
+        self._task: asyncio.Task[None] | None = None
+        self._wake = asyncio.Event()
+        self._prefix = f"{resource}."
+
+    @property
+    def connected(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    async def connect(self) -> None:
+        if self._task is None:
+            self._task = asyncio.create_task(self._run(), name=f"emulate {self.resource}")
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+    async def _run(self) -> None:
+        while True:
+            self.values.update(self.emulator.step(self.values, time.monotonic()))
+            due = self.emulator.next_due()
+            timeout = IDLE_POLL_S if due is None else max(0.0, min(due - time.monotonic(), IDLE_POLL_S))
+            self._wake.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), timeout)
+
+    def observe(self, values: Mapping[str, Value]) -> None:
+        """Values of other resources' variables that this device's effects depend on."""
+        changed = False
+        for path, value in values.items():
+            if path in self.inputs and self.values.get(path) != value:
+                self.values[path] = value
+                changed = True
+        if changed:
+            self._wake.set()
+
+    async def read(self) -> dict[str, Value]:
+        return {p[len(self._prefix):]: self.values[p] for p in self.measured}
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        for name, value in commands.items():
+            self.values[self._prefix + name] = value
+        self._wake.set()
+
+    def safe_state(self) -> dict[str, Value]:
+        # The emulated device is as safe as its model: commands go to their initial values
+        # except those the contract keeps (a tool changer never drops its tool).
+        spec = self.model.resource_by_name[self.resource]
+        keep = set(spec.parameters.get("safe_keep", ()))
+        return {v.name: v.initial for v in spec.commands if v.name not in keep}  # type: ignore[misc]
+
+    async def selftest(self) -> SelftestReport:
+        report = SelftestReport(self.resource)
+        report.add("device answers", self.connected, "emulated")
+        measured = await self.read()
+        report.add("inputs read", len(measured) == len(self.measured), ", ".join(sorted(measured)))
+        report.add("outputs read back", all(self.values[c] is not None for c in self.commands), "emulated")
+        return report

@@ -1,0 +1,65 @@
+"""The mirror-watchdog's verdicts, with a hand-driven clock."""
+
+from __future__ import annotations
+
+from controller.watchdog import Watchdog
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def make() -> tuple[Watchdog, Clock]:
+    clock = Clock()
+    return Watchdog({"nr": "pi-tool", "lift": "pi-tool", "ur": "ur10"}, stale_after=0.5, mirror_bound=1.0,
+                    clock=clock), clock
+
+
+def test_a_resource_is_healthy_only_when_alive_fresh_and_mirroring() -> None:
+    dog, clock = make()
+    assert "not alive" in dog.health("nr").reason
+    dog.hub_alive("pi-tool", True)
+    assert "no state received" in dog.health("nr").reason
+    dog.state_received("nr", "ok", "", None)
+    assert dog.health("nr").healthy
+    clock.now += 0.6
+    assert "stale" in dog.health("nr").reason
+    dog.state_received("nr", "ok", "", None)
+    assert dog.health("nr").healthy
+
+
+def test_liveliness_loss_marks_every_resource_of_the_hub() -> None:
+    dog, _ = make()
+    dog.hub_alive("pi-tool", True)
+    for r in ("nr", "lift"):
+        dog.state_received(r, "ok", "", None)
+    dog.hub_alive("pi-tool", False)
+    assert set(dog.unhealthy()) == {"nr", "lift", "ur"}
+    assert "pi-tool is not alive" in dog.unhealthy()["lift"]
+
+
+def test_mirror_lag_beyond_the_bound_is_reported() -> None:
+    dog, clock = make()
+    dog.hub_alive("pi-tool", True)
+    dog.command_sent("nr", 5)
+    dog.state_received("nr", "ok", "", 4)
+    clock.now += 0.4
+    dog.state_received("nr", "ok", "", 4)
+    assert dog.health("nr").healthy  # within the bound
+    clock.now += 0.7
+    dog.state_received("nr", "ok", "", 4)
+    health = dog.health("nr")
+    assert not health.healthy and "mirror lags" in health.reason and health.mirror_lag == 1
+    dog.state_received("nr", "ok", "", 5)
+    assert dog.health("nr").healthy
+
+
+def test_hub_reported_problems_are_unhealthy() -> None:
+    dog, _ = make()
+    dog.hub_alive("ur10", True)
+    dog.state_received("ur", "device_lost", "RTDE silent for 0.3 s", None)
+    assert dog.health("ur").reason == "hub reports device_lost: RTDE silent for 0.3 s"
