@@ -3,10 +3,11 @@
 Effects (what devices do by themselves) and automatic transitions (which fire
 whenever enabled) are uncontrollable. The bad states of a specification are its
 forbidden states plus every state from which uncontrollable transitions can reach
-them: the fixpoint of `bad := bad || guard_e && wp(e, bad)`, computed symbolically.
-A deliberate transition then gets the extra guard `!wp(t, bad)`: it never fires into
-a bad state. A model whose initial state is already bad cannot be controlled: it is
-refused with the uncontrollable trace that leads into the forbidden state.
+them: the least fixpoint of `bad := bad || guard_e && wp(e, bad)`, computed over
+cubes (`controller/cubes.py`) with implied cubes pruned, which keeps it exact and
+small. A deliberate transition then gets the extra guard `!wp(t, bad)`: it never
+fires into a bad state. A model whose initial state is already bad cannot be
+controlled: it is refused with the uncontrollable trace into the forbidden state.
 """
 
 from __future__ import annotations
@@ -15,11 +16,12 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from common.model import Model, Predicate, Specification, TransitionKind, all_of, any_of, apply_all
-from common.model.predicates import Const, Or
-from common.model.rewrite import after, simplify
+from common.model.rewrite import simplify
 
-MAX_ROUNDS = 12
-TRACE_STATE_LIMIT = 50_000
+from .cubes import Cube, before, conjoin, holds, implies, merge, prune, to_cubes, to_predicate
+
+MAX_BAD_CUBES = 20_000
+TRACE_STATE_LIMIT = 200_000
 
 
 class SynthesisError(ValueError):
@@ -35,63 +37,70 @@ class SynthesisError(ValueError):
 @dataclass
 class Supervisor:
     guards: dict[str, Predicate] = field(default_factory=dict)  # deliberate transition -> extra guard
-    bad: dict[str, Predicate] = field(default_factory=dict)  # specification -> its bad states
+    bad: dict[str, list[Cube]] = field(default_factory=dict)  # specification -> its bad states
     forbidden: Predicate | None = None  # disjunction of the specifications, for the planner
     converged: dict[str, bool] = field(default_factory=dict)
 
-
-def _disjuncts(p: Predicate) -> list[Predicate]:
-    if isinstance(p, Const) and not p.value:
-        return []
-    return list(p.items) if isinstance(p, Or) else [p]
+    def explain(self, transition: str) -> str:
+        guard = self.guards.get(transition)
+        return "no synthesized guard" if guard is None else str(guard)
 
 
-def bad_states(model: Model, spec: Specification) -> tuple[Predicate, bool]:
-    uncontrollable = [t for t in model.ability_transitions if t.kind is not TransitionKind.DELIBERATE]
-    terms = _disjuncts(simplify(spec.forbidden))
-    frontier = list(terms)
-    for _ in range(MAX_ROUNDS):
-        new_terms: list[Predicate] = []
-        for t in uncontrollable:
-            for outcome in t.outcomes:
-                touched = {a.path for a in outcome}
-                for term in frontier:
-                    if not (term.paths() & touched):
-                        continue  # the transition cannot make this term true
-                    pre = simplify(all_of(t.guard, after(term, outcome)))
-                    for d in _disjuncts(pre):
-                        if d not in terms and d not in new_terms:
-                            new_terms.append(d)
-        if not new_terms:
-            return simplify(any_of(*terms)), True
-        terms += new_terms
-        frontier = new_terms
-    return simplify(any_of(*terms)), False
+def bad_states(model: Model, spec: Specification) -> tuple[list[Cube], bool]:
+    domains = {p: v.domain for p, v in model.variables.items()}
+    uncontrollable = [
+        (t, outcome, to_cubes(t.guard, domains), {a.path for a in outcome})
+        for t in model.ability_transitions if t.kind is not TransitionKind.DELIBERATE
+        for outcome in t.outcomes
+    ]
+    bad = merge(to_cubes(spec.forbidden, domains), domains)
+    frontier = list(bad)
+    while frontier:
+        found: list[Cube] = []
+        for cube in frontier:
+            for _t, outcome, guard_cubes, written in uncontrollable:
+                if written.isdisjoint(cube):
+                    continue  # this transition cannot make the cube true
+                for pre in before(cube, outcome, domains):
+                    for g in guard_cubes:
+                        candidate = conjoin(g, pre)
+                        if candidate is not None and not any(implies(candidate, b) for b in bad) \
+                                and not any(implies(candidate, f) for f in found):
+                            found.append(candidate)
+        if not found:
+            return bad, True
+        previous = bad
+        bad = merge(bad + prune(found), domains)
+        # Cubes that merging widened are new too: their predecessors are looked at next round.
+        frontier = [c for c in bad if not any(implies(c, old) for old in previous)]
+        if len(bad) > MAX_BAD_CUBES:
+            return bad, False
+    return bad, True
 
 
 def synthesize(model: Model) -> Supervisor:
     supervisor = Supervisor()
     if not model.specifications:
         return supervisor
+    domains = {p: v.domain for p, v in model.variables.items()}
     initial = model.initial_state()
     for spec in model.specifications:
         bad, converged = bad_states(model, spec)
         supervisor.bad[spec.name] = bad
         supervisor.converged[spec.name] = converged
-        if bad.eval(initial):
+        if holds(bad, initial):
             raise SynthesisError(spec, counterexample(model, spec))
     for t in model.ability_transitions:
         if t.kind is not TransitionKind.DELIBERATE:
             continue
         written = t.written()
-        extra = []
+        extra: list[Predicate] = []
         for spec in model.specifications:
             bad = supervisor.bad[spec.name]
-            if not (bad.paths() & written):
-                continue
-            guard = simplify(~after(bad, t.actions))
-            if not (isinstance(guard, Const) and guard.value):
-                extra.append(guard)
+            into_bad = merge([pre for cube in bad if not written.isdisjoint(cube)
+                              for pre in before(cube, t.actions, domains)], domains)
+            if into_bad:
+                extra.append(simplify(~to_predicate(into_bad, domains)))
         if extra:
             supervisor.guards[t.name] = simplify(all_of(*extra))
     supervisor.forbidden = simplify(any_of(*(s.forbidden for s in model.specifications)))
@@ -102,12 +111,13 @@ def counterexample(model: Model, spec: Specification) -> list[str]:
     """Breadth-first over uncontrollable transitions from the initial state into the forbidden state."""
     uncontrollable = [t for t in model.ability_transitions if t.kind is not TransitionKind.DELIBERATE]
     start = model.initial_state()
-    key = tuple(sorted(start.items()))
+    paths = tuple(start)
+    key = tuple(start.values())
     parents: dict[tuple, tuple[tuple | None, str]] = {key: (None, "")}
     queue = deque([start])
     while queue and len(parents) < TRACE_STATE_LIMIT:
         state = queue.popleft()
-        skey = tuple(sorted(state.items()))
+        skey = tuple(state[p] for p in paths)
         if spec.forbidden.eval(state):
             trace = []
             while parents[skey][0] is not None:
@@ -120,8 +130,8 @@ def counterexample(model: Model, spec: Specification) -> list[str]:
                 continue
             for outcome in t.outcomes:
                 nxt = apply_all(outcome, state)
-                nkey = tuple(sorted(nxt.items()))
+                nkey = tuple(nxt[p] for p in paths)
                 if nkey not in parents:
                     parents[nkey] = (skey, f"{t.name} [{t.kind.value}]: {'; '.join(str(a) for a in outcome)}")
                     queue.append(nxt)
-    return ["(a longer uncontrollable path than the search bound; the initial state satisfies the bad states)"]
+    return ["(the forbidden state is further away than the search bound)"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+from .actions import Assign
 from .predicates import Predicate, all_of, as_predicate
 from .transitions import ActionsLike, Transition, automatic, deliberate, effect
 
@@ -35,7 +36,7 @@ class Phase:
     predicate: object
     deliberate: ActionsLike = ()
     automatic: ActionsLike = ()
-    effects: Iterable[ActionsLike] = ()
+    effects: Iterable[ActionsLike] | Assign | str = ()
     guard: object = True
 
 
@@ -71,7 +72,9 @@ def ability(name: str, *, extra: Iterable[Transition] = (), **phases: Phase | ob
             transitions.append(deliberate(prefix, guard, phase.deliberate))
         if phase.automatic:
             transitions.append(automatic(f"{prefix}.auto" if phase.deliberate else prefix, guard, phase.automatic))
-        outcomes = list(phase.effects)
+        # A bare action is one outcome, not a sequence of characters.
+        effects = phase.effects
+        outcomes = [effects] if isinstance(effects, str | Assign) else list(effects)
         if outcomes:
             transitions.append(effect(f"{prefix}.effect", guard, *outcomes))
     transitions.extend(extra)

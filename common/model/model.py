@@ -135,6 +135,11 @@ class Model:
             for outcome in t.outcomes:
                 for action in outcome:
                     problems += self._check_action(t, action, variables)
+                targets = Counter(a.path for a in outcome)
+                for target, count in targets.items():
+                    if count > 1:
+                        problems.append(Problem(t.name, f"one outcome assigns {target} {count} times",
+                                                "; ".join(str(a) for a in outcome)))
             if t.kind is not TransitionKind.EFFECT and len(t.outcomes) != 1:
                 problems.append(Problem(t.name, f"a {t.kind.value} transition has exactly one outcome"))
         for a in self.abilities:
@@ -166,15 +171,23 @@ class Model:
 
     @staticmethod
     def _check_value(where: str, path: str, value: object, variables: Mapping[str, Variable],
-                     expression: str) -> list[Problem]:
+                     expression: str, assigned: bool = False) -> list[Problem]:
         var = variables.get(path)
         if var is None:
             return []  # reported as an unknown variable
         if isinstance(value, Ref):
             other = variables.get(value.path)
-            if other is not None and other.domain != var.domain:
-                return [Problem(where, f"{path} ({var.domain.describe()}) compared with or assigned {value.path} "
-                                       f"({other.domain.describe()}): the domains differ", expression)]
+            if other is None:
+                return []
+            if assigned and not set(other.domain.values) <= set(var.domain.values):
+                return [Problem(where, f"{path} ({var.domain.describe()}) is assigned {value.path} "
+                                       f"({other.domain.describe()}): not every value fits", expression)]
+            # bools and ints never mix (True == 1 in a Python set)
+            disjoint = not set(other.domain.values) & set(var.domain.values)
+            if var.domain.is_bool != other.domain.is_bool or (not assigned and disjoint):
+                return [Problem(where, f"{path} ({var.domain.describe()}) compared with {value.path} "
+                                       f"({other.domain.describe()}): the domains have no value in common",
+                                expression)]
             return []
         if value not in var.domain:
             return [Problem(where, f"value {value!r} is outside the domain of {path} ({var.domain.describe()})",
@@ -208,5 +221,5 @@ class Model:
             if t.kind is not TransitionKind.EFFECT and var.kind is Kind.MEASURED:
                 problems.append(Problem(t.name, f"a {t.kind.value} (control) action writes measured variable "
                                                 f"{var.path}; only hubs write measured variables", text))
-        problems += self._check_value(t.name, action.path, action.value, variables, text)
+        problems += self._check_value(t.name, action.path, action.value, variables, text, assigned=True)
         return problems

@@ -277,8 +277,11 @@ def ne(path: str, value: object) -> Predicate:
 
 def all_of(*items: object) -> Predicate:
     """Conjunction of any number of predicates (true when empty)."""
-    preds = [as_predicate(i) for i in items]
-    preds = [p for p in preds if p != TRUE]
+    preds: list[Predicate] = []
+    for item in items:
+        p = as_predicate(item)
+        if p != TRUE:
+            preds.extend(p.items if isinstance(p, And) else (p,))
     if not preds:
         return TRUE
     return preds[0] if len(preds) == 1 else And(tuple(preds))
@@ -286,8 +289,11 @@ def all_of(*items: object) -> Predicate:
 
 def any_of(*items: object) -> Predicate:
     """Disjunction of any number of predicates (false when empty)."""
-    preds = [as_predicate(i) for i in items]
-    preds = [p for p in preds if p != FALSE]
+    preds: list[Predicate] = []
+    for item in items:
+        p = as_predicate(item)
+        if p != FALSE:
+            preds.extend(p.items if isinstance(p, Or) else (p,))
     if not preds:
         return FALSE
     return preds[0] if len(preds) == 1 else Or(tuple(preds))

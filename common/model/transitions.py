@@ -48,11 +48,11 @@ class Transition:
         return f"{self.name} [{self.kind.value}]: {self.guard} -> {body}"
 
 
-ActionsLike = Iterable[Assign | str] | str
+ActionsLike = Iterable[Assign | str] | Assign | str
 
 
 def _actions(items: ActionsLike) -> tuple[Assign, ...]:
-    if isinstance(items, str):
+    if isinstance(items, str | Assign):
         items = [items]
     return tuple(as_action(a) for a in items)
 

@@ -1,0 +1,15 @@
+"""The RFID reader: the operator is verified once a badge is scanned (an effect: the operator does it)."""
+
+from __future__ import annotations
+
+from common.model import Phase, Resource, ability, measured
+
+
+def rfid(name: str = "rfid") -> Resource:
+    verified_m = measured(f"{name}.verified_m", description="a valid operator badge was scanned")
+    verify = ability(
+        f"{name}.verify",
+        executing=Phase(~verified_m, effects=[f"{verified_m.path} := true"]),
+        finished=verified_m,
+    )
+    return Resource(name, (verified_m,), (verify,), device_type="rfid")
