@@ -84,11 +84,12 @@ class PlanProgress:
         return next(iter(self.pending()), None)
 
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
-        for i in self.relevant:
-            if state[i] != self.expected[i]:
-                return (f"{compiled.paths[i]} is {state[i]!r} but the plan expects {self.expected[i]!r} "
-                        f"(after {len(self.done)} of {len(self.transitions)} steps)")
-        return None
+        differing = [i for i in self.relevant if state[i] != self.expected[i]]
+        if not differing:
+            return None
+        shown = "; ".join(f"{compiled.paths[i]} is {state[i]!r}, expected {self.expected[i]!r}" for i in differing[:4])
+        more = f" and {len(differing) - 4} more" if len(differing) > 4 else ""
+        return f"{shown}{more} (after {len(self.done)} of {len(self.transitions)} steps)"
 
 
 @dataclass

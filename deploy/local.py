@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from common.model import Model
 from common.model.compiled import CompiledModel
-from controller.control import ControlCore
-from controller.planner import Planner
+from controller.control import ERROR_RETRY_S, ControlCore
+from controller.planner import NoPlan, Planner
 from controller.synthesis import synthesize
 from hubs.emulator import EffectEmulator
 
@@ -51,13 +51,13 @@ def run_in_process(
     guards = synthesize(model)
     compiled = CompiledModel(model, guards.guards)
     planner = Planner(compiled, guards.forbidden)
-    core = ControlCore(compiled, planner)
+    now = 0.0
+    core = ControlCore(compiled, planner, clock=lambda: now)
     core.request(*(op.name for op in model.operations))
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure)
     deliberate = {t.name for t in compiled.deliberate}
     total = len(model.operations)
     start_wall = time.perf_counter()
-    now = 0.0
     planning = 0.0
     reason = ""
     while True:
@@ -78,14 +78,18 @@ def run_in_process(
             answer = core.solve(request)
             planning += time.perf_counter() - began
             core.adopt(request, answer)
-            if answer is not None and not hasattr(answer, "steps"):
-                say(f"{now:7.1f}s  no plan: {answer.reason}")
+            if isinstance(answer, NoPlan):
+                say(f"{now:7.1f}s  no plan for {', '.join(answer.unreachable) or 'the goals'}: {answer.reason}")
             continue
         changes = emulator.step(compiled.unpack(core.state), now)
         if changes:
             core.ingest(changes)
             continue
         due = emulator.next_due()
+        if due is None and core.errors:
+            due = min(since for _, since in core.errors.values()) + ERROR_RETRY_S  # wait for the retry
+            if due <= now:
+                due = now + ERROR_RETRY_S
         if due is None:
             waiting = [n for n in core.executing()]
             reason = f"stuck: nothing can happen; executing: {', '.join(waiting) or 'none'}"

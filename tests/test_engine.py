@@ -1,0 +1,99 @@
+"""The two-stage engine: operations, then abilities; plans followed as traces; replans with reasons."""
+
+from __future__ import annotations
+
+from common.model import Model, Phase, Resource, ability, command, measured, operation, parse_predicate
+from common.model.compiled import CompiledModel
+from controller.engine import Engine, PlanProgress
+from controller.planner import Plan, Planner
+from tests.test_model import nutrunner_resource
+
+
+def two_lamps() -> Model:
+    """Two independent devices: a command each, an effect each."""
+    resources = []
+    for name in ("a", "b"):
+        on_c, on_m = command(f"{name}.on_c", initial=False), measured(f"{name}.on_m")
+        switch = ability(f"{name}.switch", enabled=Phase(~on_c & ~on_m, deliberate=f"{name}.on_c := true"),
+                         executing=Phase(on_c & ~on_m, effects=f"{name}.on_m := true"))
+        resources.append(Resource(name, (on_c, on_m), (switch,)))
+    return Model("lamps", tuple(resources),
+                 operations=(operation("BothOn", "!a.on_m && !b.on_m", "a.on_m && b.on_m"),))
+
+
+def plan_for(compiled: CompiledModel, state: tuple, goal: str) -> Plan:
+    result = Planner(compiled).plan(state, {"goal": parse_predicate(goal)})
+    assert isinstance(result, Plan), result
+    return result
+
+
+def test_nutrunner_plan_is_followed_step_by_step() -> None:
+    model = Model("nr", (nutrunner_resource(),))
+    c = CompiledModel(model)
+    engine = Engine(c)
+    start = c.initial()
+    plan = plan_for(c, start, "nr.tqr_m")
+    progress = PlanProgress(c, plan)
+    tick = engine.tick(start, progress=progress)
+    assert tick.fired == ["nr.tighten.enabled"] and tick.changed_commands == {"nr.run_c": True}
+    # Nothing more fires until the device shows its effect.
+    again = engine.tick(tick.state, progress=progress)
+    assert again.fired == [] and again.replan is None
+    running = c.with_values(again.state, {"nr.run_m": True})
+    tick = engine.tick(running, progress=progress)
+    assert tick.fired == [] and tick.replan is None
+    done = c.with_values(tick.state, {"nr.tqr_m": True})
+    tick = engine.tick(done, progress=progress)
+    # The automatic transition resets run_c at once, as the paper's table says.
+    assert tick.fired == ["nr.tighten.finished"] and tick.changed_commands == {"nr.run_c": False}
+
+
+def test_deliberate_transitions_never_fire_without_a_plan() -> None:
+    c = CompiledModel(Model("nr", (nutrunner_resource(),)))
+    tick = Engine(c).tick(c.initial())
+    assert tick.fired == [] and tick.changed_commands == {}
+
+
+def test_a_failed_effect_leaves_the_plan_and_asks_for_a_replan() -> None:
+    c = CompiledModel(Model("nr", (nutrunner_resource(),)))
+    engine = Engine(c)
+    plan = plan_for(c, c.initial(), "nr.tqr_m")
+    progress = PlanProgress(c, plan)
+    state = engine.tick(c.initial(), progress=progress).state
+    state = engine.tick(c.with_values(state, {"nr.run_m": True}), progress=progress).state
+    tick = engine.tick(c.with_values(state, {"nr.fail_m": True}), progress=progress)
+    assert tick.replan is not None and "nr.fail_m" in tick.replan
+
+
+def test_independent_steps_run_in_parallel_dependent_ones_in_order() -> None:
+    model = two_lamps()
+    c = CompiledModel(model)
+    engine = Engine(c)
+    plan = plan_for(c, c.initial(), "a.on_m && b.on_m")
+    # The plan is a sequence, but both lamps are switched on in the first tick.
+    tick = engine.tick(c.initial(), progress=PlanProgress(c, plan))
+    assert sorted(tick.fired) == ["a.switch.enabled", "b.switch.enabled"]
+    # A nutrunner cycle is one chain: its second deliberate step waits for the effects before it.
+    nr = CompiledModel(Model("nr", (nutrunner_resource(),)))
+    twice = plan_for(nr, nr.initial(), "nr.tqr_m")
+    progress = PlanProgress(nr, twice)
+    assert all(progress.depends[j] for j in range(1, len(twice.steps)))
+
+
+def test_operations_start_on_request_and_finish_on_their_goal() -> None:
+    c = CompiledModel(two_lamps())
+    engine = Engine(c)
+    tick = engine.tick(c.initial())
+    assert tick.started == []  # not requested
+    tick = engine.tick(c.initial(), requested=["BothOn"])
+    assert tick.started == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == "executing"
+    lit = c.with_values(tick.state, {"a.on_m": True, "b.on_m": True, "a.on_c": True, "b.on_c": True})
+    tick = engine.tick(lit, requested=["BothOn"])
+    assert tick.finished == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == "finished"
+
+
+def test_a_disabled_resource_gets_no_commands() -> None:
+    c = CompiledModel(two_lamps())
+    plan = plan_for(c, c.initial(), "a.on_m && b.on_m")
+    tick = Engine(c).tick(c.initial(), progress=PlanProgress(c, plan), disabled=frozenset({"a"}))
+    assert tick.fired == ["b.switch.enabled"] and tick.changed_commands == {"b.on_c": True}
