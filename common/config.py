@@ -1,0 +1,513 @@
+"""The station's deployment file (`hubs.toml`): schema, loader and checks.
+
+Schema (every key not listed is an error, except a device's driver parameters)::
+
+    [station]
+    name  = "engine_assembly"                              # key prefix of every message
+    model = "common.stations.engine_assembly:build_model"  # module:attribute, a Model or a function returning one
+
+    [network]                    # defaults for every process
+    mode     = "peer"            # "peer": direct links (the controller listens, hubs connect to it)
+                                 # "client": every process connects to zenoh routers
+    listen   = []                # zenoh endpoints a process listens on ([] = none)
+    connect  = ["tcp/decs.local:7447"]   # zenoh endpoints a process connects to
+    lease_ms = 2000              # a frozen process is declared gone after this long (>= 100)
+
+    [controller]
+    host             = "decs"                    # machine it runs on
+    name             = "controller"              # its id in commands (`controller` field)
+    command_rate_hz  = 10                        # commands are re-sent at this rate (and at once on change)
+    tick_rate_hz     = 20                        # engine ticks at this rate (and on every state change)
+    db               = "var/controller.sqlite"   # persisted estimated state, relative to the working dir
+    mirror_timeout_s = 1.0                       # mirror may lag the command this long before unhealthy
+    stale_after_s    = 0.5                       # a resource state older than this is stale
+    listen  = ["tcp/0.0.0.0:7447"]               # optional: replaces [network].listen for the controller
+    connect = []                                 # optional: replaces [network].connect for the controller
+
+    [hubs.pi-tool]               # one table per hub (ECU); the table name is the hub name
+    host              = "pi-tool"   # machine (hostname or address) for deploy/ssh
+    ssh_user          = "pi"
+    rate_hz           = 50          # state publication rate (and at once on change)
+    command_timeout_s = 1.0         # no command for this long: outputs to the safe state
+    listen  = [...]                 # optional, replaces [network].listen for this hub
+    connect = [...]                 # optional, replaces [network].connect for this hub
+
+    [hubs.pi-tool.devices.nr]    # one table per resource the hub serves; the table name is the
+    type = "nutrunner"           # resource name in the station model; type: a DEVICE_TYPES entry
+    mode = "emulate"             # "emulate" (model effects) | "sim" (driver against a simulator) | "real"
+    i2c_bus = 1                  # anything else: driver parameters, handed to the driver as is
+
+Checks (all problems are reported at once, each as `file:line: key: message`):
+unknown keys, wrong types and out-of-range numbers, missing keys, duplicate hubs
+(a TOML error), a resource served by two hubs, unknown device type or mode, names
+that cannot be key chunks. With the station model (`load_station`, or
+`check_against_model`): a device whose resource the model lacks, a model resource
+no hub serves, a device type differing from the model's.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, TypeVar
+
+import msgspec
+
+from common.model import Model
+
+DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
+DEVICE_MODES = ("emulate", "sim", "real")
+NETWORK_MODES = ("peer", "client")
+
+Hz = Annotated[float, msgspec.Meta(gt=0)]
+Seconds = Annotated[float, msgspec.Meta(gt=0)]
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+
+# --- typed configuration -----------------------------------------------------------------
+
+class StationSection(msgspec.Struct, frozen=True):
+    name: str
+    model: str
+
+
+class NetworkConfig(msgspec.Struct, frozen=True):
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[str] = msgspec.field(default_factory=list)
+    connect: list[str] = msgspec.field(default_factory=list)
+    lease_ms: Annotated[int, msgspec.Meta(ge=100)] = 2000
+
+
+class ControllerConfig(msgspec.Struct, frozen=True):
+    host: str
+    name: str = "controller"
+    command_rate_hz: Hz = 10.0
+    tick_rate_hz: Hz = 20.0
+    db: str = "var/controller.sqlite"
+    mirror_timeout_s: Seconds = 1.0
+    stale_after_s: Seconds = 0.5
+    listen: list[str] | None = None
+    connect: list[str] | None = None
+
+
+class DeviceConfig(msgspec.Struct, frozen=True):
+    resource: str  # the table name: the resource in the station model
+    type: str
+    mode: Literal["emulate", "sim", "real"] = "emulate"
+    params: dict[str, Any] = msgspec.field(default_factory=dict)  # the driver parameters
+    line: int = 0  # where it is declared, for later error messages
+
+
+class HubConfig(msgspec.Struct, frozen=True):
+    name: str  # the table name
+    host: str
+    ssh_user: str = "pi"
+    rate_hz: Hz = 50.0
+    command_timeout_s: Seconds = 1.0
+    listen: list[str] | None = None
+    connect: list[str] | None = None
+    devices: dict[str, DeviceConfig] = msgspec.field(default_factory=dict)
+    line: int = 0
+
+
+class StationConfig(msgspec.Struct, frozen=True):
+    path: str
+    station: StationSection
+    network: NetworkConfig
+    controller: ControllerConfig
+    hubs: dict[str, HubConfig]
+
+    @property
+    def resources(self) -> dict[str, HubConfig]:
+        """Each resource name and the hub that serves it."""
+        return {r: hub for hub in self.hubs.values() for r in hub.devices}
+
+    def hub_of(self, resource: str) -> HubConfig:
+        try:
+            return self.resources[resource]
+        except KeyError:
+            raise KeyError(f"{self.path}: no hub serves resource {resource!r}") from None
+
+    def device(self, resource: str) -> DeviceConfig:
+        return self.hub_of(resource).devices[resource]
+
+    def network_for(self, process: str) -> NetworkConfig:
+        """The network settings of "controller" or of a hub (its listen/connect override [network])."""
+        section: ControllerConfig | HubConfig
+        if process == "controller":
+            section = self.controller
+        elif process in self.hubs:
+            section = self.hubs[process]
+        else:
+            raise KeyError(f"{self.path}: no hub named {process!r} (hubs: {', '.join(self.hubs)})")
+        return NetworkConfig(
+            mode=self.network.mode,
+            listen=list(section.listen) if section.listen is not None else list(self.network.listen),
+            connect=list(section.connect) if section.connect is not None else list(self.network.connect),
+            lease_ms=self.network.lease_ms,
+        )
+
+    def loopback_network(self, process: str, port: int = 7447) -> NetworkConfig:
+        """The network settings for running the whole station on one machine (virtual
+        commissioning): peer mode, the controller listens on 127.0.0.1:`port`, every hub
+        connects to it; the lease of the file is kept."""
+        if process != "controller" and process not in self.hubs:
+            raise KeyError(f"{self.path}: no hub named {process!r} (hubs: {', '.join(self.hubs)})")
+        endpoint = f"tcp/127.0.0.1:{port}"
+        controller = process == "controller"
+        return NetworkConfig(mode="peer", listen=[endpoint] if controller else [],
+                             connect=[] if controller else [endpoint], lease_ms=self.network.lease_ms)
+
+    def load_model(self) -> Model:
+        """Import the station model named by [station] model; errors name the file and line."""
+        return _import_model(self)
+
+
+# --- errors -------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ConfigProblem:
+    file: str
+    line: int | None
+    key: str
+    message: str
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line else self.file
+        return f"{where}: {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
+
+
+class ConfigError(ValueError):
+    """One or more problems in a deployment file, each with file, line and key."""
+
+    def __init__(self, problems: list[ConfigProblem]) -> None:
+        self.problems = problems
+        if len(problems) == 1:
+            text = str(problems[0])
+        else:
+            text = f"{len(problems)} problems:\n" + "\n".join(f"  {p}" for p in problems)
+        super().__init__(text)
+
+    @property
+    def line(self) -> int | None:
+        return self.problems[0].line
+
+    @property
+    def key(self) -> str:
+        return self.problems[0].key
+
+
+# --- where a key is written ----------------------------------------------------------------
+
+_KEY_PART = r'(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|\'[^\']*\')'
+_DOTTED_KEY = rf"{_KEY_PART}(?:\s*\.\s*{_KEY_PART})*"
+_HEADER = re.compile(rf"^\s*\[\[?\s*({_DOTTED_KEY})\s*\]\]?\s*(?:#.*)?$")
+_ASSIGN = re.compile(rf"^\s*({_DOTTED_KEY})\s*=")
+_INLINE_ASSIGN = re.compile(rf"[{{,]\s*({_DOTTED_KEY})\s*=")
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'')
+
+
+def _split_key(text: str) -> tuple[str, ...]:
+    parts = re.findall(_KEY_PART, text)
+    return tuple(p[1:-1] if p[:1] in "\"'" else p for p in parts)
+
+
+class KeyLines:
+    """Line numbers of the keys and tables in TOML text (tomllib does not keep them).
+
+    A line-based scan: good for the files people write (tables, `key = value`,
+    inline tables on one line, multi-line arrays and strings)."""
+
+    def __init__(self, text: str) -> None:
+        self._explicit: dict[tuple[str, ...], int] = {}
+        self._implicit: dict[tuple[str, ...], int] = {}
+        table: tuple[str, ...] = ()
+        in_multiline: str | None = None
+        depth = 0  # open brackets of a multi-line array
+        for number, line in enumerate(text.splitlines(), start=1):
+            if in_multiline is not None:
+                if line.count(in_multiline) % 2 == 1:
+                    in_multiline = None
+                continue
+            if depth > 0:
+                code = _STRING.sub('""', line).split("#", 1)[0]
+                depth += code.count("[") - code.count("]")
+                continue
+            header = _HEADER.match(line)
+            if header:
+                table = _split_key(header.group(1))
+                self._record(table, number)
+                continue
+            assign = _ASSIGN.match(line)
+            if not assign:
+                continue
+            path = table + _split_key(assign.group(1))
+            self._record(path, number)
+            rest = line[assign.end():]
+            for inner in _INLINE_ASSIGN.finditer(rest):
+                self._explicit.setdefault(path + _split_key(inner.group(1)), number)
+            for quote in ('"""', "'''"):
+                if rest.count(quote) % 2 == 1:
+                    in_multiline = quote
+            code = _STRING.sub('""', rest).split("#", 1)[0]  # brackets inside strings do not count
+            depth = max(0, code.count("[") - code.count("]"))
+
+    def _record(self, path: tuple[str, ...], number: int) -> None:
+        self._explicit.setdefault(path, number)
+        for i in range(1, len(path)):
+            self._implicit.setdefault(path[:i], number)
+
+    def line_of(self, path: Iterable[str]) -> int | None:
+        """The line of `path`, or of its longest written prefix."""
+        path = tuple(path)
+        while path:
+            line = self._explicit.get(path) or self._implicit.get(path)
+            if line:
+                return line
+            path = path[:-1]
+        return None
+
+
+# --- loading -------------------------------------------------------------------------------
+
+S = TypeVar("S", bound=msgspec.Struct)
+
+
+class _Checker:
+    """Collects problems while converting the TOML tables into the typed config."""
+
+    def __init__(self, file: str, text: str) -> None:
+        self.file = file
+        self.lines = KeyLines(text)
+        self.problems: list[ConfigProblem] = []
+
+    def problem(self, path: tuple[str, ...], message: str) -> None:
+        self.problems.append(ConfigProblem(self.file, self.lines.line_of(path), ".".join(path), message))
+
+    def table(self, value: object, path: tuple[str, ...]) -> dict[str, Any] | None:
+        if isinstance(value, dict):
+            return value
+        self.problem(path, f"must be a table, not {_toml_type(value)}")
+        return None
+
+    def section(self, cls: type[S], table: Mapping[str, Any], path: tuple[str, ...], *,
+                extra: Mapping[str, Any] = (), free: bool = False, skip: Iterable[str] = ()) -> S | None:
+        """Convert `table` into `cls` field by field, so that every bad key is reported.
+        `extra`: fields not read from the table; `free`: unknown keys are returned as `params`;
+        `skip`: keys handled by the caller."""
+        fields = {f.name: f for f in msgspec.structs.fields(cls)}
+        values: dict[str, Any] = dict(extra)
+        params: dict[str, Any] = {}
+        ok = True
+        skip = set(skip)
+        for key, value in table.items():
+            if key in skip:
+                continue
+            field = fields.get(key)
+            if field is None or key in extra or key in ("params", "line"):
+                if free:
+                    params[key] = value
+                    continue
+                known = sorted(n for n in fields if n not in extra and n not in ("params", "line")) + sorted(skip)
+                self.problem((*path, key), f"unknown key (known keys: {', '.join(known)})")
+                ok = False
+                continue
+            try:
+                values[key] = msgspec.convert(value, field.type)
+            except msgspec.ValidationError as exc:
+                self.problem((*path, key), _explain_type(exc, value, field.type, key))
+                ok = False
+        for name, field in fields.items():
+            if field.required and name not in values:
+                self.problem(path, f"missing key {name!r}")
+                ok = False
+        if free:
+            values["params"] = params
+        if "line" in fields:
+            values["line"] = self.lines.line_of(path) or 0
+        return cls(**values) if ok else None
+
+
+def _toml_type(value: object) -> str:
+    return {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
+            dict: "a table"}.get(type(value), type(value).__name__)
+
+
+def _explain_type(exc: msgspec.ValidationError, value: object, ftype: object, key: str) -> str:
+    if key == "mode" and isinstance(value, str):
+        allowed = NETWORK_MODES if "peer" in str(ftype) else DEVICE_MODES
+        return f"unknown mode {value!r} (expected one of: {', '.join(allowed)})"
+    text = re.sub(r"\s*- at `\$[^`]*`", "", str(exc))
+    return f"{text} (found {_toml_type(value)} {value!r})"
+
+
+def load_config(path: str | Path, *, model: Model | None = None) -> StationConfig:
+    """Read and check a deployment file; with `model`, also check it against the station model.
+    Raises ConfigError (every problem, each with file, line and key) or OSError."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    return parse_config(text, str(path), model=model)
+
+
+def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = None) -> StationConfig:
+    checker = _Checker(file, text)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError([_toml_problem(file, str(exc))]) from None
+
+    for key in data:
+        if key not in ("station", "network", "controller", "hubs"):
+            checker.problem((key,), "unknown section (known: station, network, controller, hubs)")
+
+    station = network = controller = None
+    table = checker.table(data.get("station"), ("station",)) if "station" in data else None
+    if "station" not in data:
+        checker.problems.append(ConfigProblem(file, None, "station", "missing section [station]"))
+    elif table is not None:
+        station = checker.section(StationSection, table, ("station",))
+        if station is not None:
+            if not _NAME.match(station.name):
+                checker.problem(("station", "name"), f"{station.name!r} cannot be a key chunk "
+                                                     f"(letters, digits, _ . - only)")
+            if ":" not in station.model:
+                checker.problem(("station", "model"), f"{station.model!r} must be 'module:attribute'")
+
+    table = checker.table(data.get("network", {}), ("network",))
+    if table is not None:
+        network = checker.section(NetworkConfig, table, ("network",))
+        if network is not None and network.mode == "client" and network.listen:
+            checker.problem(("network", "listen"), "a zenoh client cannot listen: remove it or use mode 'peer'")
+
+    if "controller" not in data:
+        checker.problems.append(ConfigProblem(file, None, "controller", "missing section [controller]"))
+    else:
+        table = checker.table(data["controller"], ("controller",))
+        if table is not None:
+            controller = checker.section(ControllerConfig, table, ("controller",))
+
+    hubs: dict[str, HubConfig] = {}
+    served: dict[str, str] = {}
+    hubs_table = checker.table(data.get("hubs", {}), ("hubs",))
+    if not hubs_table:
+        checker.problem(("hubs",), "no hubs: declare at least one [hubs.NAME] table")
+    for hub_name, hub_value in (hubs_table or {}).items():
+        hub = _load_hub(checker, hub_name, hub_value, served)
+        if hub is not None:
+            hubs[hub_name] = hub
+
+    if checker.problems:
+        raise ConfigError(checker.problems)
+    assert station is not None and network is not None and controller is not None
+    config = StationConfig(path=file, station=station, network=network, controller=controller, hubs=hubs)
+    if model is not None:
+        check_against_model(config, model, text=text)
+    return config
+
+
+def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str]) -> HubConfig | None:
+    path = ("hubs", name)
+    table = checker.table(value, path)
+    if table is None:
+        return None
+    if not _NAME.match(name):
+        checker.problem(path, f"hub name {name!r} cannot be a key chunk (letters, digits, _ . - only)")
+    devices: dict[str, DeviceConfig] = {}
+    devices_table = checker.table(table.get("devices", {}), (*path, "devices"))
+    for resource, device_value in (devices_table or {}).items():
+        dpath = (*path, "devices", resource)
+        device_table = checker.table(device_value, dpath)
+        if device_table is None:
+            continue
+        if not _NAME.match(resource) or "." in resource:
+            checker.problem(dpath, f"resource name {resource!r} cannot be a key chunk (letters, digits, _ - only)")
+        if resource in served:
+            checker.problem(dpath, f"resource {resource!r} is already served by hub {served[resource]!r}: "
+                                   f"a resource belongs to exactly one hub")
+        else:
+            served[resource] = name
+        device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource}, free=True)
+        if device is not None:
+            if device.type not in DEVICE_TYPES:
+                checker.problem((*dpath, "type"), f"unknown device type {device.type!r} "
+                                                  f"(expected one of: {', '.join(DEVICE_TYPES)})")
+            devices[resource] = device
+    return checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))
+
+
+def _toml_problem(file: str, message: str) -> ConfigProblem:
+    match = re.match(r"(?P<msg>.*) \(at line (?P<line>\d+), column \d+\)$", message)
+    if not match:
+        return ConfigProblem(file, None, "", f"invalid TOML: {message}")
+    text, line = match.group("msg"), int(match.group("line"))
+    declared = re.match(r"Cannot declare \((?P<keys>.*)\) twice", text)
+    if declared:
+        keys = tuple(re.findall(r"'((?:[^'\\]|\\.)*)'", declared.group("keys")))
+        key = ".".join(keys)
+        if len(keys) == 2 and keys[0] == "hubs":
+            return ConfigProblem(file, line, key, f"duplicate hub name {keys[1]!r} (its table is declared twice)")
+        return ConfigProblem(file, line, key, "table declared twice")
+    if text == "Cannot overwrite a value":
+        return ConfigProblem(file, line, "", "a key is set twice (or a table overwrites a value)")
+    return ConfigProblem(file, line, "", f"invalid TOML: {text}")
+
+
+# --- the station model ----------------------------------------------------------------------
+
+def _import_model(config: StationConfig) -> Model:
+    spec = config.station.model
+    lines = KeyLines(Path(config.path).read_text(encoding="utf-8")) if Path(config.path).is_file() else None
+    line = lines.line_of(("station", "model")) if lines else None
+
+    def fail(message: str) -> ConfigError:
+        return ConfigError([ConfigProblem(config.path, line, "station.model", message)])
+
+    module_name, _, attribute = spec.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:
+        raise fail(f"cannot import module {module_name!r}: {type(exc).__name__}: {exc}") from exc
+    try:
+        target = getattr(module, attribute)
+    except AttributeError:
+        raise fail(f"module {module_name!r} has no attribute {attribute!r}") from None
+    model = target() if callable(target) and not isinstance(target, Model) else target
+    if not isinstance(model, Model):
+        raise fail(f"{spec} gave a {type(model).__name__}, not a Model")
+    return model
+
+
+def check_against_model(config: StationConfig, model: Model, *, text: str | None = None) -> None:
+    """Every device is a resource of the model with the same type, and every resource has a hub."""
+    if text is None:
+        text = Path(config.path).read_text(encoding="utf-8") if Path(config.path).is_file() else ""
+    checker = _Checker(config.path, text)
+    by_name = model.resource_by_name
+    for hub in config.hubs.values():
+        for resource, device in hub.devices.items():
+            dpath = ("hubs", hub.name, "devices", resource)
+            model_resource = by_name.get(resource)
+            if model_resource is None:
+                checker.problem(dpath, f"resource {resource!r} is not in station model {model.name!r} "
+                                       f"(its resources: {', '.join(sorted(by_name))})")
+            elif model_resource.device_type and model_resource.device_type != device.type:
+                checker.problem((*dpath, "type"), f"type {device.type!r}, but resource {resource!r} of the model "
+                                                  f"is a {model_resource.device_type!r}")
+    for resource in by_name:
+        if resource not in config.resources:
+            checker.problem(("station", "model"), f"resource {resource!r} of station model {model.name!r} "
+                                                  f"is served by no hub")
+    if checker.problems:
+        raise ConfigError(checker.problems)
+
+
+def load_station(path: str | Path) -> tuple[StationConfig, Model]:
+    """Load the deployment file and the station model it names, and check them against each other."""
+    config = load_config(path)
+    model = config.load_model()
+    check_against_model(config, model)
+    return config, model
