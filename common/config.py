@@ -154,12 +154,14 @@ class StationConfig(msgspec.Struct, frozen=True):
     def loopback_network(self, process: str, port: int = 7447) -> NetworkConfig:
         """The network settings for running the whole station on one machine (virtual
         commissioning): peer mode, the controller listens on 127.0.0.1:`port`, every hub
-        connects to it; the lease of the file is kept."""
+        connects to it and listens on a port of its own, because peers do not route for
+        each other: emulated devices that follow another hub's state are reached directly
+        (gossip tells the peers where). The lease of the file is kept."""
         if process != "controller" and process not in self.hubs:
             raise KeyError(f"{self.path}: no hub named {process!r} (hubs: {', '.join(self.hubs)})")
         endpoint = f"tcp/127.0.0.1:{port}"
         controller = process == "controller"
-        return NetworkConfig(mode="peer", listen=[endpoint] if controller else [],
+        return NetworkConfig(mode="peer", listen=[endpoint] if controller else ["tcp/127.0.0.1:0"],
                              connect=[] if controller else [endpoint], lease_ms=self.network.lease_ms)
 
     def load_model(self) -> Model:

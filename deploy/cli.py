@@ -7,6 +7,7 @@ import sys
 import time
 from collections.abc import Sequence
 
+from common.config import ConfigError
 from common.model import ModelError, ParseError, parse_predicate
 
 from .models import DEFAULT_MODEL, ModelLoadError, load_model
@@ -82,14 +83,36 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _failures(items: list[str]) -> dict[str, float]:
+    result = {}
+    for item in items:
+        resource, _, value = item.partition("=")
+        try:
+            p = float(value)
+        except ValueError:
+            message = f"--failure {item!r}: expected RESOURCE=PROBABILITY, e.g. nr=0.1"
+            raise argparse.ArgumentTypeError(message) from None
+        if not 0.0 <= p <= 1.0:
+            raise argparse.ArgumentTypeError(f"--failure {item!r}: the probability must be within 0..1")
+        result[resource] = p
+    return result
+
+
 def cmd_up(args: argparse.Namespace) -> int:
+    failure = _failures(args.failure)
+    if args.fail_rate:
+        failure.setdefault("nr", args.fail_rate)
+    if not args.in_process:
+        from .station import Options, up
+
+        return up(Options(config=args.config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
+                          time_limit=args.time_limit, resume=args.resume))
     from .local import run_in_process
 
     model = load_model(args.model)
-    failure = {"nr": args.fail_rate} if args.fail_rate else None
     print(f"statehub: running station {model.name} in one process, emulated devices "
           f"(speed x{args.speed}, seed {args.seed})", flush=True)
-    summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure, realtime=args.realtime,
+    summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None, realtime=args.realtime,
                              report=lambda line: print(line, flush=True))
     print()
     print(f"{'finished' if summary.finished else 'NOT finished'}: {summary.operations_finished}/"
@@ -102,6 +125,34 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 0 if summary.finished else 1
 
 
+def cmd_hub(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from .processes import run_hub, setup_logging
+
+    setup_logging(args.name, args.verbose)
+    return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
+                               seed=args.seed, mode=args.mode, failure=_failures(args.failure)))
+
+
+def cmd_controller(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from .processes import run_controller, setup_logging
+
+    setup_logging("controller", args.verbose)
+    return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
+                                      mirror_wait_s=args.mirror_wait))
+
+
+def cmd_selftest(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from .processes import run_selftest
+
+    return asyncio.run(run_selftest(args.config, args.name, mode=args.mode))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hubctl", description="statehub: state-based control of assembly stations")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -110,12 +161,54 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--model", default=DEFAULT_MODEL, help=f"station model as module:function ({DEFAULT_MODEL})")
         return p
 
-    up = with_model(sub.add_parser("up", help="run the whole station on this machine, emulated, to completion"))
-    up.add_argument("--speed", type=float, default=1.0, help="scale every emulated delay (2 = twice as fast)")
+    def with_config(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+        p.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
+        return p
+
+    def positive(text: str) -> float:
+        value = float(text)
+        if value <= 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        return value
+
+    modes = ("emulate", "sim", "real")
+    up = with_config(with_model(sub.add_parser(
+        "up", help="run the whole station on this machine (controller and every hub as processes) to completion")))
+    up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
-    up.add_argument("--fail-rate", type=float, default=0.0, help="probability that the nutrunner fails a bolt")
-    up.add_argument("--realtime", action="store_true", help="wait through emulated delays instead of skipping")
+    up.add_argument("--mode", choices=modes, help="run every device in this mode (default: as in hubs.toml)")
+    up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
+                    help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")
+    up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")
+    up.add_argument("--time-limit", type=positive, default=900.0, help="give up after this many seconds")
+    up.add_argument("--resume", action="store_true", help="keep the controller's persisted state of the last run")
+    up.add_argument("--in-process", action="store_true",
+                    help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
+    up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")
     up.set_defaults(func=cmd_up)
+
+    hub = with_config(sub.add_parser("hub", help="run one hub of hubs.toml (what its systemd unit runs)"))
+    hub.add_argument("name", help="the hub, e.g. pi-tool")
+    hub.add_argument("--mode", choices=modes, help="override every device's mode")
+    hub.add_argument("--speed", type=positive, default=1.0, help="scale emulated delays")
+    hub.add_argument("--seed", type=int, default=0)
+    hub.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P")
+    hub.add_argument("--loopback-port", type=int, help="run on loopback, the controller listening on this port")
+    hub.add_argument("-v", "--verbose", action="store_true")
+    hub.set_defaults(func=cmd_hub)
+
+    ctl = with_config(sub.add_parser("controller", help="run the controller (what its systemd unit runs)"))
+    ctl.add_argument("--db", help="SQLite file of the persisted state (default: [controller] db)")
+    ctl.add_argument("--fresh", action="store_true", help="forget the persisted state first")
+    ctl.add_argument("--mirror-wait", type=positive, default=5.0, help="seconds to wait for the hubs' mirrors")
+    ctl.add_argument("--loopback-port", type=int, help="run on loopback, listening on this port")
+    ctl.add_argument("-v", "--verbose", action="store_true")
+    ctl.set_defaults(func=cmd_controller)
+
+    selftest = with_config(sub.add_parser("selftest", help="run a hub's self-test; exit 1 on a failure"))
+    selftest.add_argument("name", help="the hub, e.g. pi-tool")
+    selftest.add_argument("--mode", choices=modes, help="override every device's mode")
+    selftest.set_defaults(func=cmd_selftest)
 
     plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
     plan.add_argument("goal", nargs="+", help="an operation name or a predicate, e.g. 'engine.bolt7_e == tightened'")
@@ -132,7 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ModelError, ModelLoadError) as exc:
+    except (ModelError, ModelLoadError, ConfigError, argparse.ArgumentTypeError) as exc:
         return _fail(str(exc))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)

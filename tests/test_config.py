@@ -76,7 +76,7 @@ def test_the_repository_hubs_toml_loads() -> None:
     assert config.network_for("pi-tool").connect == config.network.connect
     assert config.device("nr").params == {"bus": 1, "address": 0x20}
     local = config.loopback_network("human", port=17447)
-    assert (local.mode, local.listen, local.connect) == ("peer", [], ["tcp/127.0.0.1:17447"])
+    assert (local.mode, local.listen, local.connect) == ("peer", ["tcp/127.0.0.1:0"], ["tcp/127.0.0.1:17447"])
     assert config.loopback_network("controller", port=17447).listen == ["tcp/127.0.0.1:17447"]
 
 

@@ -1,0 +1,59 @@
+"""What the controller publishes under `{station}/ctl/` and the console's requests: plain msgspec structs."""
+
+from __future__ import annotations
+
+import msgspec
+
+from common.messages import Message
+
+
+class ResourceHealthInfo(msgspec.Struct, frozen=True):
+    resource: str
+    hub: str
+    healthy: bool
+    reason: str = ""
+    age: float | None = None  # seconds since its last state
+    mirror_lag: int = 0
+
+
+class OperationInfo(msgspec.Struct, frozen=True):
+    name: str
+    state: str  # initial / executing / finished / error
+    error: str = ""
+    since: float = 0.0  # controller clock when it entered this state
+
+
+class PlanStepInfo(msgspec.Struct, frozen=True):
+    resource: str
+    transition: str
+    kind: str
+    guard: str
+    done: bool
+
+
+class StatusMessage(Message, kw_only=True):
+    """`{station}/ctl/status`, at a few Hz and on every operation change."""
+
+    station: str
+    controller: str
+    time: float
+    uptime: float
+    operations: list[OperationInfo]
+    health: list[ResourceHealthInfo]
+    plan: list[PlanStepInfo]  # the current plan's steps, done or not
+    plan_goals: list[str]
+    plans: int
+    replans: int
+    no_plans: int
+    abilities: int
+    paused: bool = False
+    finished: bool = False
+    events: list[str] = msgspec.field(default_factory=list)  # newest last
+
+
+class StateSnapshot(Message, kw_only=True):
+    """`{station}/ctl/state`: the global state, every variable by path."""
+
+    time: float
+    values: dict[str, bool | int | str]
+    forced: list[str] = msgspec.field(default_factory=list)

@@ -1,0 +1,286 @@
+"""The controller process: the engine and planner on live state over Zenoh.
+
+It ingests every hub's state, ticks on change and at its tick rate, publishes changed
+commands at once and all commands at the command rate, persists estimated variables
+and operation states on every change, runs the planner off the event loop, feeds the
+mirror-watchdog, and publishes status and state under `{station}/ctl/`.
+
+On start it restores what it persisted, waits (bounded) for every hub's mirror, takes
+the command state from the mirrors, and goes on where it was.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+import uuid
+from collections.abc import Iterable
+
+from common.bus import Bus, Keys
+from common.config import StationConfig
+from common.ctl import OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.messages import Codec, HubStatus, MessageError, encode
+from common.model import Kind, Model, Value
+from common.model.compiled import CompiledModel
+
+from .control import ControlCore
+from .planner import NoPlan, Planner
+from .state import StateStore
+from .synthesis import synthesize
+from .watchdog import Watchdog
+
+log = logging.getLogger("statehub.controller")
+
+STATUS_PERIOD_S = 0.25
+STATE_SNAPSHOT_PERIOD_S = 1.0
+
+
+class ControllerService:
+    def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
+                 mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None) -> None:
+        self.config = config
+        self.model = model
+        self.bus = bus
+        self.keys = Keys(config.station.name)
+        self.controller_id = f"{config.controller.name}-{uuid.uuid4().hex[:8]}"
+        supervisor = synthesize(model)
+        self.compiled = CompiledModel(model, supervisor.guards)
+        self.planner = Planner(self.compiled, supervisor.forbidden)
+        self.core = ControlCore(self.compiled, self.planner)
+        self.store = StateStore(db or config.controller.db)
+        self.hubs_of = {r: hub.name for r, hub in config.resources.items()}
+        self.watchdog = Watchdog(self.hubs_of, stale_after=config.controller.stale_after_s,
+                                 mirror_bound=config.controller.mirror_timeout_s)
+        self.codecs = {r.name: Codec(r) for r in model.resources if r.name in self.hubs_of}
+        self.commanded = {name: c for name, c in self.codecs.items() if c.commands}
+        self.command_seq = dict.fromkeys(self.commanded, 0)
+        self.mirror_wait = mirror_wait_s
+        self.requested = list(requested) if requested is not None else None
+        self.persisted_indices = [self.compiled.index[p] for p in model.paths_of_kind(Kind.ESTIMATED)]
+        index = self.compiled.index
+        self.command_indices = {
+            name: [(v.name, index[v.path]) for v in codec.commands] for name, codec in self.commanded.items()
+        }
+        self.started = time.monotonic()
+        self.op_since: dict[str, float] = {}
+        self.mirrors: dict[str, dict[str, Value]] = {}
+        self._dirty = asyncio.Event()
+        self._status_due = True
+        self._last_persisted: dict[int, Value] = {}
+        self._mismatch_logged: set[str] = set()
+        self._planning: asyncio.Task[None] | None = None
+
+    # --- start-up -------------------------------------------------------------------------
+    def _restore(self) -> None:
+        values, notes = self.store.load(self.model)
+        for note in notes:
+            log.warning(note)
+        requested = self.store.meta("requested")
+        if values:
+            self.core.load(values)
+            log.info("restored %d persisted values from %s", len(values), self.store.path)
+        if self.requested is None:
+            self.requested = list(requested) if isinstance(requested, list) else [op.name for op in
+                                                                                  self.model.operations]
+        self.core.request(*self.requested)
+        self.store.save({}, {"requested": self.requested})
+        self._last_persisted = {i: self.core.state[i] for i in self.persisted_indices}
+
+    async def _take_mirrors(self) -> None:
+        """Wait for each commanded resource's state; take the command state from its mirror."""
+        deadline = time.monotonic() + self.mirror_wait
+        while time.monotonic() < deadline and set(self.commanded) - set(self.mirrors):
+            await asyncio.sleep(0.05)
+        missing = sorted(set(self.commanded) - set(self.mirrors))
+        if missing:
+            by_hub: dict[str, list[str]] = {}
+            for r in missing:
+                by_hub.setdefault(self.hubs_of[r], []).append(r)
+            report = "; ".join(f"hub {h}: {', '.join(rs)}" for h, rs in sorted(by_hub.items()))
+            log.warning("no mirror within %.1f s from %s: their commands start from the model's initial values",
+                        self.mirror_wait, report)
+            self.core.events.log.append(f"start: no mirror from {report}")
+        taken = {f"{r}.{name}": v for r, values in self.mirrors.items() for name, v in values.items()}
+        if taken:
+            self.core.load(taken)
+            log.info("took the command state of %d resources from their mirrors", len(self.mirrors))
+
+    # --- the loop -------------------------------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> None:
+        self._restore()
+        tasks = [
+            asyncio.create_task(self._ingest_states(), name="states"),
+            asyncio.create_task(self._watch_hubs(), name="liveliness"),
+        ]
+        try:
+            await self._take_mirrors()
+            tasks.append(asyncio.create_task(self._resend_commands(stop), name="resend"))
+            tasks.append(asyncio.create_task(self._publish_status_loop(stop), name="status"))
+            await self._tick_loop(stop)
+        finally:
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+            if self._planning is not None:
+                self._planning.cancel()
+            self.store.close()
+
+    async def _ingest_states(self) -> None:
+        async for sample in self.bus.subscribe(self.keys.all_state):
+            resource = self.keys.resource_of(sample.key)
+            codec = self.codecs.get(resource or "")
+            if codec is None:
+                continue
+            try:
+                state = codec.decode_state(sample.payload)
+            except MessageError as exc:
+                if resource not in self._mismatch_logged:
+                    log.warning("dropped state on %s: %s", sample.key, exc)
+                    self._mismatch_logged.add(resource)  # type: ignore[arg-type]
+                continue
+            mirror = state.mirror
+            mirrored_seq = mirror.seq if mirror is not None and mirror.controller == self.controller_id else None
+            if mirror is not None and resource not in self.mirrors:
+                self.mirrors[resource] = codec.values(mirror)  # type: ignore[index]
+            elif mirror is None and resource not in self.mirrors and state.status == HubStatus.NO_COMMAND:
+                self.mirrors[resource] = {}  # type: ignore[index]
+            self.watchdog.state_received(resource, str(state.status), state.detail, mirrored_seq)  # type: ignore[arg-type]
+            measured = {p: v for p, v in codec.values(state, paths=True).items() if v is not None}
+            if self.core.ingest(measured):
+                self._dirty.set()
+
+    async def _watch_hubs(self) -> None:
+        async for event in self.bus.watch_liveliness(self.keys.all_alive):
+            hub = self.keys.hub_of(event.key)
+            if hub is not None:
+                self.watchdog.hub_alive(hub, event.alive)
+                self.core.events.log.append(f"hub {hub} {'alive' if event.alive else 'gone'}")
+                self._dirty.set()
+
+    async def _tick_loop(self, stop: asyncio.Event) -> None:
+        period = 1.0 / self.config.controller.tick_rate_hz
+        while not stop.is_set():
+            self._tick()
+            self._dirty.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._dirty.wait(), period)
+
+    def _tick(self) -> None:
+        core = self.core
+        unhealthy = self.watchdog.unhealthy()
+        core.set_disabled(frozenset(unhealthy))
+        before = core.state
+        result = core.tick()
+        now = time.monotonic()
+        for name in result.started:
+            self.op_since[name] = now
+            log.info("operation %s started", name)
+        for name in result.finished:
+            self.op_since[name] = now
+            log.info("operation %s finished", name)
+        if result.started or result.finished:
+            self._status_due = True
+        self._persist()
+        self._publish_changed(before, core.state)
+        self._maybe_plan()
+
+    def _persist(self) -> None:
+        changes = {self.compiled.paths[i]: self.core.state[i] for i in self.persisted_indices
+                   if self._last_persisted.get(i) != self.core.state[i]}
+        if changes:
+            self.store.save(changes)
+            for path in changes:
+                self._last_persisted[self.compiled.index[path]] = self.core.state[self.compiled.index[path]]
+
+    def _publish_changed(self, before: tuple, after: tuple) -> None:
+        for resource, indices in self.command_indices.items():
+            if any(before[i] != after[i] for _, i in indices):
+                self.command_seq[resource] += 1
+                self._send(resource)
+
+    def _send(self, resource: str) -> None:
+        # Sent to unhealthy resources too: the engine changes nothing for them, and re-sending
+        # the same state lets a recovering hub catch up at once.
+        codec = self.commanded[resource]
+        values = {name: self.core.state[i] for name, i in self.command_indices[resource]}
+        seq = self.command_seq[resource]
+        message = codec.command(values, seq=seq, controller=self.controller_id)
+        self.bus.publish(self.keys.cmd(resource), codec.encode_command(message))
+        self.watchdog.command_sent(resource, seq)
+
+    async def _resend_commands(self, stop: asyncio.Event) -> None:
+        period = 1.0 / self.config.controller.command_rate_hz
+        while not stop.is_set():
+            for resource in self.commanded:
+                self._send(resource)
+            await asyncio.sleep(period)
+
+    # --- planning off the loop ------------------------------------------------------------
+    def _maybe_plan(self) -> None:
+        if self._planning is not None:
+            return
+        request = self.core.plan_request()
+        if request is None:
+            return
+
+        async def solve() -> None:
+            try:
+                result = await asyncio.to_thread(self.core.solve, request)
+            except Exception as exc:  # a planner bug must not stop the station: report and retry
+                log.exception("planner failed")
+                result = NoPlan(f"planner failed: {type(exc).__name__}: {exc}", tuple(request.goals))
+            self.core.adopt(request, result)
+            if isinstance(result, NoPlan):
+                log.warning("no plan: %s", result)
+            elif result is not None:
+                log.info("plan: %d steps for %d goals in %.1f ms", len(result.steps), len(request.goals),
+                         result.stats.seconds * 1000)
+            self._planning = None
+            self._status_due = True
+            self._dirty.set()
+
+        self._planning = asyncio.create_task(solve(), name="plan")
+
+    # --- status out -----------------------------------------------------------------------
+    async def _publish_status_loop(self, stop: asyncio.Event) -> None:
+        last_snapshot = 0.0
+        while not stop.is_set():
+            self.bus.publish(self.keys.ctl("status"), encode(self.status()))
+            now = time.monotonic()
+            if now - last_snapshot >= STATE_SNAPSHOT_PERIOD_S:
+                snapshot = StateSnapshot(time=time.time(), values=self.compiled.unpack(self.core.state))
+                self.bus.publish(self.keys.ctl("state"), encode(snapshot))
+                last_snapshot = now
+            await asyncio.sleep(STATUS_PERIOD_S)
+
+    def status(self) -> StatusMessage:
+        core = self.core
+        now = time.monotonic()
+        operations = [
+            OperationInfo(op.name, core.op_state(op.name), core.errors.get(op.name, ("", 0.0))[0],
+                          self.op_since.get(op.name, self.started) - self.started)
+            for op in self.model.operations
+        ]
+        health = []
+        for resource in self.hubs_of:
+            h = self.watchdog.health(resource)
+            health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag))
+        plan: list[PlanStepInfo] = []
+        goals: list[str] = []
+        progress = core.progress
+        if progress is not None:
+            goals = list(progress.plan.goals)
+            for j, step in enumerate(progress.plan.steps):
+                resource = step.transition.split(".", 1)[0]
+                plan.append(PlanStepInfo(resource, step.transition, step.kind.value, step.guard, j in progress.done))
+        events = core.events
+        return StatusMessage(
+            station=self.config.station.name, controller=self.controller_id, time=time.time(),
+            uptime=now - self.started, operations=operations, health=health, plan=plan, plan_goals=goals,
+            plans=events.plans, replans=events.replans, no_plans=events.no_plans,
+            abilities=events.abilities_started, finished=core.all_finished(), events=events.log[-20:],
+        )

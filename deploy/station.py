@@ -1,0 +1,244 @@
+"""`hubctl up`: the whole station on this machine, as separate processes over Zenoh on loopback.
+
+The controller and every hub of hubs.toml run as their own processes (what systemd
+runs on the real station), with emulated devices by default. This process watches the
+controller's status and prints progress, then a summary; Ctrl-C stops everything.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import os
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from common.bus import Bus, Keys, zenoh_config
+from common.config import StationConfig, load_station
+from common.ctl import StatusMessage
+from common.messages import MessageError, decode
+
+RUN_DIR = Path("var/up")
+STOP_GRACE_S = 5.0
+
+
+class AlreadyRunning(RuntimeError):
+    pass
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def single_instance(run_dir: Path):  # type: ignore[no-untyped-def]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    lock_path = run_dir / "up.lock"
+    handle = lock_path.open("a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        owner = handle.read().strip() or "unknown"
+        handle.close()
+        raise AlreadyRunning(f"hubctl up is already running here ({owner}); stop it first (Ctrl-C)") from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}, started {time.strftime('%H:%M:%S')}")
+    handle.flush()
+    try:
+        yield
+    finally:
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        handle.close()
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    log: Path
+    process: asyncio.subprocess.Process | None = None
+
+
+@dataclass
+class Options:
+    config: str = "hubs.toml"
+    speed: float = 1.0
+    seed: int = 0
+    mode: str | None = None
+    failure: dict[str, float] = field(default_factory=dict)
+    time_limit: float = 900.0
+    resume: bool = False
+    run_dir: Path = RUN_DIR
+
+
+def child_commands(config: StationConfig, options: Options, port: int) -> list[Child]:
+    base = [sys.executable, "-m", "deploy.cli"]
+    run_dir = options.run_dir
+    controller = [*base, "controller", "--config", options.config, "--loopback-port", str(port),
+                  "--db", str(run_dir / "controller.sqlite")]
+    if not options.resume:
+        controller.append("--fresh")
+    children = [Child("controller", controller, run_dir / "controller.log")]
+    for hub in config.hubs.values():
+        argv = [*base, "hub", hub.name, "--config", options.config, "--loopback-port", str(port),
+                "--speed", str(options.speed), "--seed", str(options.seed)]
+        if options.mode:
+            argv += ["--mode", options.mode]
+        for resource, p in options.failure.items():
+            if resource in hub.devices:
+                argv += ["--failure", f"{resource}={p}"]
+        children.append(Child(hub.name, argv, run_dir / f"{hub.name}.log"))
+    return children
+
+
+class Progress:
+    """Prints what changed in the controller's status: operations, and what each resource is doing."""
+
+    def __init__(self, say: object, total: int) -> None:
+        self.say = say
+        self.total = total
+        self.op_states: dict[str, str] = {}
+        self.activity = ""
+        self.last_activity_at = 0.0
+        self.reported: set[str] = set()
+
+    def update(self, status: StatusMessage) -> None:
+        say = self.say
+        done = sum(1 for op in status.operations if op.state == "finished")
+        for op in status.operations:
+            old = self.op_states.get(op.name)
+            if old == op.state:
+                continue
+            self.op_states[op.name] = op.state
+            if old is None and op.state == "initial":
+                continue
+            label = {"executing": "start", "finished": "done ", "error": "ERROR", "initial": "reset"}[op.state]
+            extra = f"  ({op.error})" if op.error else ""
+            say(f"[{done:2d}/{self.total}] {status.uptime:6.1f}s  {label}  {op.name}{extra}")  # type: ignore[operator]
+        current: dict[str, str] = {}
+        for step in status.plan:
+            if not step.done and step.resource not in current:
+                current[step.resource] = step.transition.split(".", 2)[1] if "." in step.transition else step.transition
+        unhealthy = {h.resource: h.reason for h in status.health if not h.healthy}
+        activity = " | ".join(f"{r}: {a}" for r, a in sorted(current.items()))
+        now = time.monotonic()
+        if activity and (activity != self.activity and now - self.last_activity_at > 1.0):
+            say(f"          {status.uptime:6.1f}s  now  {activity}")  # type: ignore[operator]
+            self.activity, self.last_activity_at = activity, now
+        for resource, reason in unhealthy.items():
+            if resource not in self.reported:
+                say(f"          {status.uptime:6.1f}s  UNHEALTHY  {resource}: {reason}")  # type: ignore[operator]
+        for healed in self.reported - set(unhealthy):
+            say(f"          {status.uptime:6.1f}s  recovered  {healed}")  # type: ignore[operator]
+        self.reported = set(unhealthy)
+
+
+async def _start(child: Child) -> None:
+    child.log.parent.mkdir(parents=True, exist_ok=True)
+    handle = child.log.open("wb")
+    child.process = await asyncio.create_subprocess_exec(
+        *child.argv, stdout=handle, stderr=asyncio.subprocess.STDOUT, start_new_session=True)
+    handle.close()
+
+
+async def _stop(children: list[Child]) -> None:
+    running = [c for c in children if c.process is not None and c.process.returncode is None]
+    for child in running:
+        with contextlib.suppress(ProcessLookupError):
+            child.process.send_signal(signal.SIGTERM)  # type: ignore[union-attr]
+    deadline = time.monotonic() + STOP_GRACE_S
+    for child in running:
+        try:
+            await asyncio.wait_for(child.process.wait(), max(0.1, deadline - time.monotonic()))  # type: ignore[union-attr]
+        except TimeoutError:
+            with contextlib.suppress(ProcessLookupError):
+                child.process.kill()  # type: ignore[union-attr]
+            await child.process.wait()  # type: ignore[union-attr]
+
+
+async def run_station(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
+    config, model = load_station(options.config)
+    port = free_port()
+    children = child_commands(config, options, port)
+    keys = Keys(config.station.name)
+    say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
+        f"on 127.0.0.1:{port}, devices {options.mode or 'as in ' + options.config}, speed x{options.speed}")
+    say(f"  logs in {options.run_dir}/")
+    began = time.monotonic()
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    for child in children:
+        await _start(child)
+    progress = Progress(say, len(model.operations))
+    result = 1
+    last: StatusMessage | None = None
+    try:
+        async with Bus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"],
+                                    lease_ms=config.network.lease_ms)) as bus:
+            statuses = bus.subscribe(keys.ctl("status"))
+            while True:
+                if stop.is_set():
+                    say("interrupted: stopping the station")
+                    result = 130
+                    break
+                dead = [c for c in children if c.process is not None and c.process.returncode is not None]
+                if dead:
+                    for c in dead:
+                        say(f"{c.name} exited with code {c.process.returncode}; its log: {c.log}")  # type: ignore[union-attr]
+                    result = 1
+                    break
+                if time.monotonic() - began > options.time_limit:
+                    say(f"time limit of {options.time_limit:.0f} s reached")
+                    break
+                try:
+                    sample = await asyncio.wait_for(statuses.get(), 0.5)
+                except TimeoutError:
+                    continue
+                try:
+                    last = decode(sample.payload, StatusMessage)
+                except MessageError as exc:
+                    say(f"ignored a malformed status: {exc}")
+                    continue
+                progress.update(last)
+                if last.finished:
+                    result = 0
+                    break
+    finally:
+        await _stop(children)
+    elapsed = time.monotonic() - began
+    if last is not None:
+        done = sum(1 for op in last.operations if op.state == "finished")
+        say("")
+        say(f"{'finished' if result == 0 else 'NOT finished'}: {done}/{len(last.operations)} operations, "
+            f"{last.abilities} abilities started, {last.plans} plans, {last.replans} replans, "
+            f"{last.no_plans} goals without a plan, in {elapsed:.1f} s")
+        faults = [e for e in last.events if "gone" in e or "no plan" in e]
+        if faults:
+            say(f"faults seen: {len(faults)}; last: {faults[-1]}")
+        if result != 0:
+            for h in last.health:
+                if not h.healthy:
+                    say(f"  {h.resource} ({h.hub}): {h.reason}")
+    else:
+        say(f"no status from the controller in {elapsed:.1f} s; see {options.run_dir}/controller.log")
+    return result
+
+
+def up(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
+    try:
+        with single_instance(options.run_dir):
+            return asyncio.run(run_station(options, say))
+    except AlreadyRunning as exc:
+        say(f"hubctl up: {exc}")
+        return 1

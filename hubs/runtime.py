@@ -1,0 +1,249 @@
+"""The generic stateless hub: commands in, outputs written, inputs read, state and mirror out.
+
+A hub serves the resources of one ECU. For each one it applies the newest valid
+command and mirrors it, publishes the measured state at its rate and at once when a
+command is applied, rejects commands outside the model's domains (and says so in its
+status), drives the driver's safe state when no command arrived within the command
+timeout, and reports a device that does not answer. It keeps no control state: a
+restarted hub starts in the safe state and takes the next command the controller
+re-sends. It never knows whether a driver is emulated, simulated or real.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import msgspec
+
+from common.bus import Bus, Keys
+from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, encode
+from common.model import Kind, Model, Value
+
+from .drivers.base import DeviceUnavailable, Driver, SelftestReport
+from .selftest import SelftestMessage, report_message
+
+log = logging.getLogger("statehub.hub")
+
+
+@dataclass
+class ResourceSlot:
+    name: str
+    driver: Driver
+    codec: Codec
+    mirror: msgspec.Struct | None = None
+    last_command_at: float | None = None
+    status: HubStatus = HubStatus.NO_COMMAND  # what became of the commands
+    detail: str = ""
+    device_problem: str | None = None  # set while the device does not answer
+    seq: int = 0
+    in_safe_state: bool = False
+    applied: dict[str, Value] = field(default_factory=dict)
+    measured: Mapping[str, Value | None] = field(default_factory=dict)
+
+
+class HubRuntime:
+    def __init__(self, *, hub: str, station: str, model: Model, drivers: Mapping[str, Driver], bus: Bus,
+                 rate_hz: float = 50.0, command_timeout_s: float = 1.0) -> None:
+        self.hub = hub
+        self.model = model
+        self.bus = bus
+        self.keys = Keys(station)
+        self.period = 1.0 / rate_hz
+        self.command_timeout = command_timeout_s
+        self.slots = {name: ResourceSlot(name, d, Codec(model.resource_by_name[name])) for name, d in drivers.items()}
+        self.selftest_reports: list[SelftestReport] = []
+        self._tasks: list[asyncio.Task[None]] = []
+        self._wake = asyncio.Event()
+
+    # --- lifecycle ------------------------------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> None:
+        for slot in self.slots.values():
+            await slot.driver.connect()
+        token = self.bus.declare_liveliness(self.keys.alive(self.hub))
+        try:
+            await self._start_in_safe_state()
+            self._tasks = [asyncio.create_task(self._commands(slot), name=f"commands {slot.name}")
+                           for slot in self.slots.values()]
+            self._tasks += [asyncio.create_task(self._external_inputs(), name="inputs")]
+            self._tasks.append(asyncio.create_task(self._selftest(), name="selftest"))
+            await self._publish_loop(stop)
+        finally:
+            for task in self._tasks:
+                task.cancel()
+            for task in self._tasks:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+            token.undeclare()
+            for slot in self.slots.values():
+                with contextlib.suppress(Exception):
+                    await slot.driver.close()
+
+    async def _start_in_safe_state(self) -> None:
+        for slot in self.slots.values():
+            await self._drive_safe_state(slot, HubStatus.NO_COMMAND, "no command received since the hub started")
+
+    async def _selftest(self) -> None:
+        """Run the self-test once the devices had a moment to connect, publish it, and answer queries for it."""
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline and not all(s.driver.connected for s in self.slots.values()):
+            await asyncio.sleep(0.05)
+        reports = []
+        for slot in self.slots.values():
+            try:
+                reports.append(await slot.driver.selftest())
+            except Exception as exc:  # a failing self-test is a report, not a crash
+                failed = SelftestReport(slot.name)
+                failed.add("self-test ran", False, f"{type(exc).__name__}: {exc}")
+                reports.append(failed)
+        self.selftest_reports = reports
+        payload = encode(report_message(self.hub, reports))
+        self.bus.publish(self.keys.selftest(self.hub), payload, block=True)
+
+        async def answer(_key: str, _payload: bytes | None) -> bytes:
+            return payload
+
+        self.bus.declare_queryable(self.keys.selftest(self.hub), answer)
+
+    # --- commands -------------------------------------------------------------------------
+    async def _commands(self, slot: ResourceSlot) -> None:
+        async for sample in self.bus.subscribe(self.keys.cmd(slot.name)):
+            try:
+                command = slot.codec.decode_command(sample.payload)
+            except (DomainError, ModelMismatch) as exc:
+                log.warning("hub %s: rejected command on %s: %s", self.hub, sample.key, exc)
+                slot.status, slot.detail = HubStatus.REJECTED, str(exc)
+                self._publish(slot)
+                continue
+            except MessageError as exc:
+                log.warning("hub %s: dropped malformed command on %s: %s", self.hub, sample.key, exc)
+                continue
+            if self._is_older(slot, command):
+                continue
+            values = slot.codec.values(command)
+            try:
+                await slot.driver.write(values)
+            except DeviceUnavailable as exc:
+                slot.device_problem = str(exc) or "device does not answer"
+                self._publish(slot)
+                continue
+            except Exception as exc:
+                log.exception("hub %s: driver of %s failed to apply a command", self.hub, slot.name)
+                slot.status, slot.detail = HubStatus.ERROR, f"{type(exc).__name__}: {exc}"
+                self._publish(slot)
+                continue
+            slot.mirror = command
+            slot.applied = dict(values)
+            slot.last_command_at = time.monotonic()
+            slot.in_safe_state = False
+            slot.status, slot.detail = HubStatus.OK, ""
+            self._publish(slot)
+
+    @staticmethod
+    def _is_older(slot: ResourceSlot, command: msgspec.Struct) -> bool:
+        mirror = slot.mirror
+        if mirror is None or mirror.controller != command.controller:  # type: ignore[attr-defined]
+            return False
+        return command.seq < mirror.seq  # type: ignore[attr-defined]
+
+    async def _drive_safe_state(self, slot: ResourceSlot, status: HubStatus, detail: str) -> None:
+        safe = dict(slot.applied)
+        safe.update(slot.driver.safe_state())
+        if not safe and slot.codec.commands:
+            safe = {v.name: v.initial for v in slot.codec.commands}  # type: ignore[misc]
+        try:
+            if safe:
+                await slot.driver.write(safe)
+        except DeviceUnavailable as exc:
+            slot.device_problem = str(exc) or "device does not answer"
+            return
+        except Exception as exc:
+            log.exception("hub %s: could not drive the safe state of %s", self.hub, slot.name)
+            slot.status, slot.detail = HubStatus.ERROR, f"safe state failed: {exc}"
+            return
+        slot.in_safe_state = True
+        slot.status, slot.detail = status, detail
+
+    # --- inputs of emulated devices that depend on other resources -------------------------
+    async def _external_inputs(self) -> None:
+        wanted: dict[str, set[str]] = {}
+        for slot in self.slots.values():
+            for path in getattr(slot.driver, "inputs", ()):
+                wanted.setdefault(path.split(".", 1)[0], set()).add(path)
+        if not wanted:
+            return
+        codecs = {r: Codec(self.model.resource_by_name[r]) for r in wanted}
+        subscriptions = []
+        for resource, paths in wanted.items():
+            kinds = {self.model.var(p).kind for p in paths}
+            if Kind.MEASURED in kinds:
+                subscriptions.append(self._follow(resource, codecs[resource], "state"))
+            if Kind.COMMAND in kinds:
+                subscriptions.append(self._follow(resource, codecs[resource], "cmd"))
+        await asyncio.gather(*subscriptions)
+
+    async def _follow(self, resource: str, codec: Codec, what: str) -> None:
+        key = self.keys.state(resource) if what == "state" else self.keys.cmd(resource)
+        async for sample in self.bus.subscribe(key):
+            try:
+                message = codec.decode_state(sample.payload) if what == "state" else codec.decode_command(
+                    sample.payload)
+            except MessageError as exc:
+                log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
+                continue
+            values = {p: v for p, v in codec.values(message, paths=True).items() if v is not None}
+            for slot in self.slots.values():
+                observe = getattr(slot.driver, "observe", None)
+                if observe is not None:
+                    observe(values)
+
+    # --- state out ------------------------------------------------------------------------
+    async def _publish_loop(self, stop: asyncio.Event) -> None:
+        next_at = time.monotonic()
+        while not stop.is_set():
+            now = time.monotonic()
+            for slot in self.slots.values():
+                if slot.last_command_at is not None and not slot.in_safe_state \
+                        and now - slot.last_command_at > self.command_timeout:
+                    log.warning("hub %s: no command for %s within %.2f s: safe state", self.hub, slot.name,
+                                self.command_timeout)
+                    await self._drive_safe_state(slot, HubStatus.SAFE_STATE,
+                                                 f"no command within {self.command_timeout} s")
+                await self._read_and_publish(slot)
+            next_at += self.period
+            delay = next_at - time.monotonic()
+            if delay < -self.period:  # fell behind (a pause): do not try to catch up
+                next_at = time.monotonic()
+                delay = 0
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), max(delay, 0))
+
+    async def _read_and_publish(self, slot: ResourceSlot) -> None:
+        try:
+            slot.measured = await slot.driver.read()
+            slot.device_problem = None
+        except DeviceUnavailable as exc:
+            slot.measured = {}  # unknown: stale values are never published as fresh
+            slot.device_problem = str(exc) or "device does not answer"
+        self._publish(slot)
+
+    def _publish(self, slot: ResourceSlot) -> None:
+        slot.seq += 1
+        status, detail = slot.status, slot.detail
+        if slot.device_problem is not None:
+            status, detail = HubStatus.DEVICE_LOST, slot.device_problem
+        try:
+            message = slot.codec.state(slot.measured, status=status, detail=detail[:500], seq=slot.seq,
+                                       hub=self.hub, mirror=slot.mirror)
+        except MessageError as exc:
+            log.error("hub %s: driver of %s read a value outside the model: %s", self.hub, slot.name, exc)
+            message = slot.codec.state({}, status=HubStatus.ERROR, detail=str(exc)[:500], seq=slot.seq,
+                                       hub=self.hub, mirror=slot.mirror)
+        self.bus.publish(self.keys.state(slot.name), slot.codec.encode_state(message))
+
+
+__all__ = ["HubRuntime", "SelftestMessage"]
