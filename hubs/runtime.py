@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import msgspec
 
-from common.bus import Bus, Keys
+from common.bus import Bus, Keys, Request
 from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, encode
 from common.model import Kind, Model, Value
 
@@ -104,7 +104,7 @@ class HubRuntime:
         payload = encode(report_message(self.hub, reports))
         self.bus.publish(self.keys.selftest(self.hub), payload, block=True)
 
-        async def answer(_key: str, _payload: bytes | None) -> bytes:
+        async def answer(_request: Request) -> bytes:
             return payload
 
         self.bus.declare_queryable(self.keys.selftest(self.hub), answer)

@@ -1,0 +1,146 @@
+"""The hub contract, against a real `hubctl hub` process over Zenoh on loopback.
+
+The test process plays the controller: it listens where the hub connects, sends
+commands, and reads states, mirrors, liveliness and the self-test report.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from common.bus import Bus, Keys, zenoh_config
+from common.config import load_station
+from common.messages import Codec, HubStatus, decode
+from hubs.selftest import SelftestMessage
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "hubs.toml"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class HubUnderTest:
+    def __init__(self, bus: Bus, process: subprocess.Popen[bytes], log: Path, station: str) -> None:
+        self.bus, self.process, self.log = bus, process, log
+        self.keys = Keys(station)
+        _, model = load_station(CONFIG)
+        self.codec = Codec(model.resource_by_name["nr"])
+        self.states = bus.subscribe(self.keys.state("nr"), coalesce=False)
+        self.last = None
+
+    async def state_where(self, predicate: Callable[[msgspec.Struct], bool], timeout: float = 5.0) -> msgspec.Struct:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                sample = await asyncio.wait_for(self.states.get(), max(0.01, deadline - time.monotonic()))
+            except TimeoutError:
+                break
+            self.last = self.codec.decode_state(sample.payload)
+            if predicate(self.last):
+                return self.last
+        raise AssertionError(f"no matching state within {timeout} s; last: {self.last}\nhub log:\n"
+                             f"{self.log.read_text()[-3000:]}")
+
+    def command(self, seq: int, run_c: bool) -> None:
+        message = self.codec.command({"run_c": run_c}, seq=seq, controller="test-controller")
+        self.bus.publish(self.keys.cmd("nr"), self.codec.encode_command(message))
+
+
+@pytest.fixture
+async def hub(tmp_path: Path) -> AsyncIterator[HubUnderTest]:
+    port = free_port()
+    config, _ = load_station(CONFIG)
+    async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], lease_ms=config.network.lease_ms)) as bus:
+        alive = bus.watch_liveliness(Keys(config.station.name).alive("pi-tool"))
+        log = tmp_path / "pi-tool.log"
+        process = subprocess.Popen(
+            [sys.executable, "-m", "deploy.cli", "hub", "pi-tool", "--config", str(CONFIG), "--loopback-port",
+             str(port), "--speed", "4"], cwd=ROOT, stdout=log.open("wb"), stderr=subprocess.STDOUT)
+        try:
+            event = await asyncio.wait_for(alive.get(), 15)
+            assert event.alive
+            yield HubUnderTest(bus, process, log, config.station.name)
+        finally:
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+                try:
+                    process.wait(5)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+
+
+async def test_commands_are_applied_mirrored_and_drive_the_device(hub: HubUnderTest) -> None:
+    first = await hub.state_where(lambda s: True)
+    assert first.status == HubStatus.NO_COMMAND and first.mirror is None
+    hub.command(1, True)
+    applied = await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 1)
+    assert applied.status == HubStatus.OK and applied.mirror.run_c is True
+    # The emulated nutrunner does what the model's effects say: it runs, then reaches torque.
+    await hub.state_where(lambda s: s.run_m is True)
+    await hub.state_where(lambda s: s.tqr_m is True or s.fail_m is True)
+    # Keep sending, as the controller does; an older command from the same controller is ignored.
+    hub.command(2, False)
+    await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 2)
+    hub.command(1, True)
+    await asyncio.sleep(0.3)
+    latest = await hub.state_where(lambda s: s.mirror is not None)
+    assert latest.mirror.seq == 2 and latest.mirror.run_c is False
+
+
+async def test_out_of_domain_and_garbage_commands_change_nothing(hub: HubUnderTest) -> None:
+    hub.command(5, False)
+    await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 5)
+    raw = msgspec.msgpack.encode({"schema": 1, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 6,
+                                  "controller": "test-controller", "time": time.time()})
+    hub.bus.publish(hub.keys.cmd("nr"), raw)
+    rejected = await hub.state_where(lambda s: s.status == HubStatus.REJECTED)
+    assert "run_c" in rejected.detail and rejected.mirror.seq == 5 and rejected.mirror.run_c is False
+    for garbage in (b"", b"\x00\xff", raw[:7], msgspec.msgpack.encode([1, 2, 3])):
+        hub.bus.publish(hub.keys.cmd("nr"), garbage)
+    await asyncio.sleep(0.3)
+    assert hub.process.poll() is None
+    after = await hub.state_where(lambda s: True)
+    assert after.mirror.seq == 5 and after.run_m is False
+
+
+async def test_silence_drives_the_safe_state(hub: HubUnderTest) -> None:
+    hub.command(1, True)
+    await hub.state_where(lambda s: s.run_m is True)
+    # No more commands: after the command timeout the hub drives run_c false and says so.
+    safe = await hub.state_where(lambda s: s.status == HubStatus.SAFE_STATE, timeout=4)
+    assert "no command within" in safe.detail
+    # The device follows its safe output: the emulated nutrunner resets.
+    await hub.state_where(lambda s: s.run_m is False, timeout=4)
+    hub.command(2, False)
+    resumed = await hub.state_where(lambda s: s.status == HubStatus.OK)
+    assert resumed.mirror.seq == 2
+
+
+async def test_selftest_report_and_liveliness(hub: HubUnderTest) -> None:
+    deadline = time.monotonic() + 10
+    replies = []
+    while time.monotonic() < deadline and not replies:
+        replies = [r for r in await hub.bus.get(hub.keys.selftest("pi-tool"), timeout=1.0) if r.ok]
+        await asyncio.sleep(0.2)
+    assert replies, "no self-test report"
+    report = decode(replies[0].payload, SelftestMessage)
+    assert report.ok and {d.resource for d in report.devices} == {"nr", "lift"}
+    gone = hub.bus.watch_liveliness(hub.keys.alive("pi-tool"), history=False)
+    os.kill(hub.process.pid, signal.SIGKILL)
+    event = await asyncio.wait_for(gone.get(), 5)
+    assert event.alive is False
