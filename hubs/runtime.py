@@ -42,7 +42,6 @@ class ResourceSlot:
     device_problem: str | None = None  # set while the device does not answer
     seq: int = 0
     in_safe_state: bool = False
-    applied: dict[str, Value] = field(default_factory=dict)
     measured: Mapping[str, Value | None] = field(default_factory=dict)
 
 
@@ -137,7 +136,6 @@ class HubRuntime:
                 self._publish(slot)
                 continue
             slot.mirror = command
-            slot.applied = dict(values)
             slot.last_command_at = time.monotonic()
             slot.in_safe_state = False
             slot.status, slot.detail = HubStatus.OK, ""
@@ -151,10 +149,9 @@ class HubRuntime:
         return command.seq < mirror.seq  # type: ignore[attr-defined]
 
     async def _drive_safe_state(self, slot: ResourceSlot, status: HubStatus, detail: str) -> None:
-        safe = dict(slot.applied)
-        safe.update(slot.driver.safe_state())
-        if not safe and slot.codec.commands:
-            safe = {v.name: v.initial for v in slot.codec.commands}  # type: ignore[misc]
+        # Only what the driver calls safe is written: re-writing the last command would restart
+        # a motion the driver just stopped, and the model's initial values could drop a tool.
+        safe = dict(slot.driver.safe_state())
         try:
             if safe:
                 await slot.driver.write(safe)

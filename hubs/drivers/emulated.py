@@ -20,6 +20,12 @@ from ..emulator import EffectEmulator
 from .base import Driver, SelftestReport
 
 IDLE_POLL_S = 0.02
+SAFE_STATES: dict[str, dict[str, Value]] = {
+    "nutrunner": {"run_c": False},
+    "mir": {"goto_c": "none"},
+    "agv": {"goto_c": "none"},
+    "operator": {"instr_c": "none"},
+}
 
 
 class EmulatedDriver(Driver):
@@ -86,11 +92,10 @@ class EmulatedDriver(Driver):
         self._wake.set()
 
     def safe_state(self) -> dict[str, Value]:
-        # The emulated device is as safe as its model: commands go to their initial values
-        # except those the contract keeps (a tool changer never drops its tool).
-        spec = self.model.resource_by_name[self.resource]
-        keep = set(spec.parameters.get("safe_keep", ()))
-        return {v.name: v.initial for v in spec.commands if v.name not in keep}  # type: ignore[misc]
+        # As docs/resource-contract.md says for the real devices; the rest keep their value
+        # (a robot holds its pose, a tool changer never drops its tool).
+        device_type = self.model.resource_by_name[self.resource].device_type
+        return dict(SAFE_STATES.get(device_type, {}))
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)

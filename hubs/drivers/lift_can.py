@@ -1,0 +1,365 @@
+"""Lifting system on CAN (python-can; ``socketcan`` on the Pi, ``virtual`` in sim mode).
+
+Frame map (11-bit identifiers, CANopen-style COB-IDs around the lift's node id
+``N``, default 0x10; multi-byte values little-endian):
+
+===========  ===========  ===  ====================================================
+COB-ID       direction    DLC  payload
+===========  ===========  ===  ====================================================
+0x200 + N    hub → lift   2    byte 0 command: 0 stop, 1 move up, 2 move down;
+                                byte 1 sequence counter (mod 256)
+0x180 + N    lift → hub   6    bytes 0-1 position, mm (uint16);
+             every 20 ms        byte 2 flags: bit 0 upper limit switch, bit 1 lower
+                                limit switch, bit 2 moving up, bit 3 moving down,
+                                bit 7 fault;
+                                byte 3 fault code (0 none);
+                                byte 4 last command received, byte 5 its sequence
+                                (the read-back of the hub's output)
+0x700 + N    lift → hub   1    NMT heartbeat: 0x00 boot-up, 0x05 operational,
+             every 100 ms       0x7F pre-operational
+===========  ===========  ===  ====================================================
+
+The lift runs a command watchdog: with no command frame for 0.5 s it stops.  The
+driver therefore repeats the command in force every ``command_period`` (0.1 s).
+
+Mapping: ``ref_c = up`` → command 1, ``down`` → command 2 (the lift stops at the limit
+switch by itself); ``pos_m`` = ``up`` when the upper limit switch is on, ``down`` when
+the lower one is, else ``between``.  A fault flag makes ``read`` raise
+``DeviceUnavailable`` naming the fault code (the contract has no fault variable; the
+controller sees the resource unhealthy).
+
+Device lost: no heartbeat for ``heartbeat_timeout`` (0.35 s), no status frame for
+``status_timeout`` (0.1 s), a heartbeat other than operational, or a bus error: the
+next ``read`` raises ``DeviceUnavailable`` and the shared ReconnectLogic reopens the
+bus and waits for the heartbeat again.
+
+Safe state: calling ``safe_state()`` sends *stop* at once and keeps sending it instead
+of the target; ``ref_c`` keeps its value (``safe_state()`` returns ``{}``).  The hub's
+own write right after ``safe_state()`` (re-writing ``ref_c``) keeps the lift stopped
+(``hubs.drivers.safestate``); the next command resumes motion toward ``ref_c``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import struct
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import can
+
+from common.model import Value
+from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.safestate import SafeStateWrite
+
+log = logging.getLogger(__name__)
+
+CMD_STOP, CMD_UP, CMD_DOWN = 0, 1, 2
+COMMANDS = {"up": CMD_UP, "down": CMD_DOWN}
+COB_COMMAND, COB_STATUS, COB_HEARTBEAT = 0x200, 0x180, 0x700
+NMT_BOOT, NMT_OPERATIONAL, NMT_PREOP = 0x00, 0x05, 0x7F
+FLAG_UPPER, FLAG_LOWER, FLAG_MOVING_UP, FLAG_MOVING_DOWN, FLAG_FAULT = 0x01, 0x02, 0x04, 0x08, 0x80
+
+BusFactory = Callable[[], can.BusABC]
+
+
+@dataclass(frozen=True)
+class LiftStatus:
+    position_mm: int
+    upper: bool
+    lower: bool
+    moving_up: bool
+    moving_down: bool
+    fault: bool
+    fault_code: int
+    echo_command: int
+    echo_seq: int
+    received: float
+
+    @classmethod
+    def decode(cls, data: bytes | bytearray, received: float) -> LiftStatus:
+        if len(data) < 6:
+            raise ValueError(f"status frame too short ({len(data)} bytes)")
+        position, flags, code, echo, seq = struct.unpack_from("<HBBBB", data)
+        return cls(
+            position,
+            bool(flags & FLAG_UPPER),
+            bool(flags & FLAG_LOWER),
+            bool(flags & FLAG_MOVING_UP),
+            bool(flags & FLAG_MOVING_DOWN),
+            bool(flags & FLAG_FAULT),
+            code,
+            echo,
+            seq,
+            received,
+        )
+
+
+class _Listener(can.Listener):
+    """Hands frames to the driver (on the event loop) and reports bus errors as a lost device."""
+
+    def __init__(self, on_message: Callable[[can.Message], None], link: ReconnectLogic) -> None:
+        self._on_message = on_message
+        self._link = link
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._on_message(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self._link.connection_lost_threadsafe(f"CAN bus error: {describe(exc)}")
+
+
+class LiftCan(Driver):
+    def __init__(
+        self,
+        resource: str = "lift",
+        *,
+        node_id: int = 0x10,
+        bus_factory: BusFactory,
+        where: str = "can0",
+        heartbeat_timeout: float = 0.35,
+        status_timeout: float = 0.1,
+        command_period: float = 0.1,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.resource = resource
+        self.node_id = node_id
+        self.where = where
+        self.heartbeat_timeout = heartbeat_timeout
+        self.status_timeout = status_timeout
+        self.command_period = command_period
+        self._bus_factory = bus_factory
+        self._bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._keepalive: asyncio.Task[None] | None = None
+        self._status: LiftStatus | None = None
+        self._heartbeat: tuple[int, float] | None = None  # (NMT state, monotonic time)
+        self._heartbeat_seen = asyncio.Event()
+        self._desired: str | None = None  # last commanded ref_c
+        self._held = False  # safe state entered: send stop until the next write
+        self._safe_write = SafeStateWrite()
+        self._seq = 0
+        self._link = ReconnectLogic(
+            f"{resource}@{where}:node 0x{node_id:02x}",
+            self._open,
+            self._release,
+            backoff=backoff,
+            connect_timeout=max(2.0, 3 * heartbeat_timeout),
+        )
+
+    # -- Driver API -------------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        return self._link.connected
+
+    @property
+    def link(self) -> ReconnectLogic:
+        return self._link
+
+    async def connect(self) -> None:
+        await self._link.start()
+
+    async def close(self) -> None:
+        await self._link.stop()
+
+    async def read(self) -> Mapping[str, Value]:
+        status = self._fresh_status()
+        if status.fault:
+            raise DeviceUnavailable(f"{self.resource}: lift reports fault code {status.fault_code}")
+        if status.upper and status.lower:
+            raise DeviceUnavailable(f"{self.resource}: both limit switches on (sensor fault)")
+        pos = "up" if status.upper else "down" if status.lower else "between"
+        return {"pos_m": pos}
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        if "ref_c" not in commands:
+            return
+        ref = str(commands["ref_c"])
+        if ref not in COMMANDS:
+            raise ValueError(f"{self.resource}: ref_c must be one of {sorted(COMMANDS)}, got {ref!r}")
+        if self._safe_write.consume():
+            self._desired = ref  # the hub re-writing the reference while entering the safe state: stay stopped
+            return
+        self._desired, self._held = ref, False
+        if not self.connected:
+            raise DeviceUnavailable(f"{self.resource}: lift not connected ({self._link.last_error})")
+        self._send_command(COMMANDS[ref])
+
+    def safe_state(self) -> Mapping[str, Value]:
+        self._held = True
+        self._safe_write.entered()
+        if self.connected:
+            with contextlib.suppress(DeviceUnavailable):
+                self._send_command(CMD_STOP)
+        return {}
+
+    async def selftest(self) -> SelftestReport:
+        report = SelftestReport(self.resource)
+        if not await self._link.wait_attempt():
+            report.add(
+                "device answers",
+                False,
+                f"no heartbeat from node 0x{self.node_id:02x} on {self.where}: {self._link.last_error}",
+            )
+            report.add("inputs read", False, "not checked: device absent")
+            report.add("outputs read back", False, "not checked: device absent")
+            return report
+        report.add("device answers", True, f"node 0x{self.node_id:02x} on {self.where} operational")
+        try:
+            values = await self.read()
+            status = self._fresh_status()
+            report.add("inputs read", True, f"pos_m={values['pos_m']}, position {status.position_mm} mm")
+        except DeviceUnavailable as exc:
+            report.add("inputs read", False, str(exc))
+        # Read back: the command in force (stop when none) must come back in the status echo.
+        command = self._command_in_force()
+        try:
+            seq = self._send_command(command)
+            deadline = time.monotonic() + max(0.5, 10 * self.status_timeout)
+            while time.monotonic() < deadline:
+                status = self._status
+                if status is not None and status.echo_seq == seq and status.echo_command == command:
+                    report.add("outputs read back", True, f"command {command} (seq {seq}) echoed")
+                    break
+                await asyncio.sleep(0.01)
+            else:
+                echo = self._status
+                got = f"echo command {echo.echo_command} seq {echo.echo_seq}" if echo else "no status"
+                report.add("outputs read back", False, f"command {command} seq {seq} not echoed ({got})")
+        except DeviceUnavailable as exc:
+            report.add("outputs read back", False, str(exc))
+        return report
+
+    # -- protocol ---------------------------------------------------------------------
+
+    def _command_in_force(self) -> int:
+        if self._held or self._desired is None:
+            return CMD_STOP
+        return COMMANDS[self._desired]
+
+    def _send_command(self, command: int) -> int:
+        bus = self._bus
+        if bus is None:
+            raise DeviceUnavailable(f"{self.resource}: bus not open")
+        self._seq = (self._seq + 1) & 0xFF
+        msg = can.Message(arbitration_id=COB_COMMAND + self.node_id, data=[command, self._seq], is_extended_id=False)
+        try:
+            bus.send(msg, timeout=0.05)
+        except can.CanError as exc:
+            self._link.connection_lost(f"send failed: {describe(exc)}")
+            raise DeviceUnavailable(f"{self.resource}: {describe(exc)}") from exc
+        return self._seq
+
+    def _fresh_status(self) -> LiftStatus:
+        if not self.connected:
+            raise DeviceUnavailable(f"{self.resource}: lift not connected ({self._link.last_error})")
+        now = time.monotonic()
+        reason = None
+        if self._heartbeat is None or now - self._heartbeat[1] > self.heartbeat_timeout:
+            reason = f"no heartbeat for {self.heartbeat_timeout} s"
+        elif self._heartbeat[0] != NMT_OPERATIONAL:
+            reason = f"node not operational (NMT state {self._heartbeat[0]:#04x})"
+        elif self._status is None or now - self._status.received > self.status_timeout:
+            reason = f"no status frame for {self.status_timeout} s"
+        if reason is not None:
+            self._link.connection_lost(reason)
+            raise DeviceUnavailable(f"{self.resource}: {reason}")
+        assert self._status is not None
+        return self._status
+
+    def _on_message(self, msg: can.Message) -> None:
+        """Runs on the event loop (the Notifier hands messages over with ``loop=``)."""
+        now = time.monotonic()
+        if msg.arbitration_id == COB_HEARTBEAT + self.node_id and msg.dlc >= 1:
+            self._heartbeat = (msg.data[0], now)
+            if msg.data[0] == NMT_OPERATIONAL:
+                self._heartbeat_seen.set()
+        elif msg.arbitration_id == COB_STATUS + self.node_id:
+            try:
+                self._status = LiftStatus.decode(msg.data, now)
+            except (ValueError, struct.error) as exc:
+                log.warning("%s: bad status frame %s: %s", self.resource, msg.data.hex(), exc)
+
+    async def _keepalive_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.command_period)
+            if not self.connected:
+                continue
+            if self._desired is not None or self._held:
+                with contextlib.suppress(DeviceUnavailable):
+                    self._send_command(self._command_in_force())
+            with contextlib.suppress(DeviceUnavailable):
+                self._fresh_status()  # notices a silent lift even when nobody reads
+
+    # -- connection -------------------------------------------------------------------
+
+    async def _open(self) -> None:
+        self._status, self._heartbeat = None, None
+        self._heartbeat_seen.clear()
+        bus = await asyncio.to_thread(self._bus_factory)
+        self._bus = bus
+        ids = (COB_STATUS + self.node_id, COB_HEARTBEAT + self.node_id)
+        bus.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids])
+        self._notifier = can.Notifier(
+            bus, [_Listener(self._on_message, self._link)], timeout=0.05, loop=asyncio.get_running_loop()
+        )
+        try:
+            await asyncio.wait_for(self._heartbeat_seen.wait(), self.heartbeat_timeout * 2)
+        except TimeoutError:
+            raise ConnectionError(f"no operational heartbeat from node 0x{self.node_id:02x}") from None
+        status_deadline = time.monotonic() + max(self.status_timeout * 3, 0.2)
+        while self._status is None and time.monotonic() < status_deadline:
+            await asyncio.sleep(0.005)
+        if self._status is None:
+            raise ConnectionError(f"heartbeat but no status frames from node 0x{self.node_id:02x}")
+        if self._desired is not None or self._held:
+            self._send_command(self._command_in_force())
+        if self._keepalive is None or self._keepalive.done():
+            self._keepalive = asyncio.create_task(self._keepalive_loop(), name=f"keepalive:{self.resource}")
+
+    async def _release(self) -> None:
+        task, self._keepalive = self._keepalive, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        notifier, self._notifier = self._notifier, None
+        bus, self._bus = self._bus, None
+
+        def shutdown() -> None:  # one thread call: finishes even if this coroutine is cancelled
+            if notifier is not None:
+                notifier.stop(1.0)
+            if bus is not None:
+                bus.shutdown()
+
+        await asyncio.to_thread(shutdown)
+        self._status = None
+        self._heartbeat = None
+
+
+def from_params(resource: str, params: Mapping[str, Any], *, interface: str | None = None) -> LiftCan:
+    interface = interface or str(params.get("interface", "socketcan"))
+    channel = str(params.get("channel", "can0"))
+    extra: dict[str, Any] = {}
+    if "bitrate" in params:
+        extra["bitrate"] = int(params["bitrate"])
+
+    def factory() -> can.BusABC:
+        return can.Bus(interface=interface, channel=channel, **extra)
+
+    return LiftCan(
+        resource,
+        node_id=int(params.get("node_id", 0x10)),
+        bus_factory=factory,
+        where=f"{interface}:{channel}",
+        heartbeat_timeout=float(params.get("heartbeat_timeout", 0.35)),
+        status_timeout=float(params.get("status_timeout", 0.1)),
+        command_period=float(params.get("command_period", 0.1)),
+        backoff=Backoff.from_params(params),
+    )

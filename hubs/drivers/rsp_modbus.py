@@ -1,0 +1,175 @@
+"""RSP tool changer on a Modbus TCP remote-I/O coupler (coils out, discrete inputs in).
+
+I/O map (addresses are offsets from ``coil_base`` / ``di_base``, defaults 0; unit id 1):
+
+=========  ====  ===================================  ==================================
+table      addr  signal                               variable
+=========  ====  ===================================  ==================================
+coil       +0    lock valve solenoid                  ``lock_c`` = true → 1
+coil       +1    unlock valve solenoid                ``lock_c`` = false → 1
+discrete   +0    piston in locked position            ``locked_m``
+discrete   +1    piston in unlocked position          (plausibility: never both)
+discrete   +2    air pressure OK                      ``pressure_ok_m``
+discrete   +3    tool present on the tool plate       ``tool_m`` (none when 0)
+discrete   +4-5  tool code bit 0, bit 1               ``tool_m``: 1 nutrunner, 2 lift_tool,
+                                                      3 filter_tool, 0 none
+=========  ====  ===================================  ==================================
+
+Protocol: ``read`` is one FC2 request (6 inputs).  ``write`` is one FC15 request
+(both solenoids, exactly one on) followed by an FC1 read-back of both coils; a mismatch
+raises ``DeviceUnavailable``.  On (re)connect the driver drives the last commanded
+``lock_c`` again, or, with no command yet, leaves the coils as they are: it never
+unlocks on its own.
+
+Safe state: none. ``lock_c`` keeps its value (a tool changer never drops its tool), so
+``safe_state()`` is empty; the valves hold position and nothing else moves.  The hub's
+own write right after ``safe_state()`` (the last command again, or the initial
+``lock_c = false`` at hub start) leaves the solenoids as they are
+(``hubs.drivers.safestate``): a hub start never unlocks a held tool.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping
+from typing import Any
+
+from common.model import Value
+from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.modbus_io import ModbusLink
+from hubs.drivers.params import require
+from hubs.drivers.reconnect import Backoff
+from hubs.drivers.safestate import SafeStateWrite
+
+TOOL_CODES = {0: "none", 1: "nutrunner", 2: "lift_tool", 3: "filter_tool"}
+LOCKED, UNLOCKED, PRESSURE, PRESENT, CODE0, CODE1 = range(6)
+N_INPUTS = 6
+
+
+class RspModbus(Driver):
+    def __init__(
+        self,
+        resource: str = "rsp",
+        *,
+        host: str,
+        port: int = 502,
+        device_id: int = 1,
+        coil_base: int = 0,
+        di_base: int = 0,
+        timeout: float = 1.0,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.resource = resource
+        self.coil_base = coil_base
+        self.di_base = di_base
+        self._desired_lock: bool | None = None
+        self._safe_write = SafeStateWrite()
+        self.link = ModbusLink(
+            resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._on_connect
+        )
+
+    @property
+    def connected(self) -> bool:
+        return self.link.connected
+
+    async def connect(self) -> None:
+        await self.link.start()
+
+    async def close(self) -> None:
+        await self.link.stop()
+
+    async def read(self) -> Mapping[str, Value]:
+        inputs = await self.link.read_discrete_inputs(self.di_base, N_INPUTS)
+        if inputs[LOCKED] and inputs[UNLOCKED]:
+            raise DeviceUnavailable(f"{self.resource}: locked and unlocked sensors both on (sensor fault)")
+        return self._decode(inputs)
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        if "lock_c" not in commands:
+            return
+        lock = bool(commands["lock_c"])
+        if self._safe_write.consume():
+            return  # the hub's write while entering the safe state (or its initial value at start): keep the lock
+        self._desired_lock = lock
+        await self._drive(lock)
+
+    def safe_state(self) -> Mapping[str, Value]:
+        self._safe_write.entered()
+        return {}
+
+    async def selftest(self) -> SelftestReport:
+        report = SelftestReport(self.resource)
+        if not await self.link.reconnect.wait_attempt():
+            report.add("device answers", False, f"no coupler at {self.link.where}: {self.link.reconnect.last_error}")
+            report.add("inputs read", False, "not checked: device absent")
+            report.add("outputs read back", False, "not checked: device absent")
+            return report
+        report.add("device answers", True, f"coupler at {self.link.where}")
+        try:
+            values = await self.read()
+            report.add("inputs read", True, ", ".join(f"{k}={v}" for k, v in values.items()))
+        except DeviceUnavailable as exc:
+            report.add("inputs read", False, str(exc))
+        try:
+            coils = await self.link.read_coils(self.coil_base, 2)
+            if coils[0] and coils[1]:
+                report.add("outputs read back", False, "lock and unlock solenoids both on")
+                return report
+            # Write what is commanded (or what is there) and read it back: never a change of lock state.
+            lock = (
+                self._desired_lock
+                if self._desired_lock is not None
+                else (coils[0] if coils != [False, False] else None)
+            )
+            if lock is None:
+                await self.link.write_coils(self.coil_base, coils)
+                back = await self.link.read_coils(self.coil_base, 2)
+                ok = back == coils
+                report.add("outputs read back", ok, f"solenoids lock={int(back[0])} unlock={int(back[1])}")
+            else:
+                await self._drive(lock)
+                report.add("outputs read back", True, f"{'lock' if lock else 'unlock'} solenoid on, read back")
+        except DeviceUnavailable as exc:
+            report.add("outputs read back", False, str(exc))
+        return report
+
+    # -- protocol ---------------------------------------------------------------------
+
+    @staticmethod
+    def _decode(inputs: list[bool]) -> dict[str, Value]:
+        code = int(inputs[CODE0]) | int(inputs[CODE1]) << 1
+        return {
+            "locked_m": inputs[LOCKED],
+            "tool_m": TOOL_CODES[code] if inputs[PRESENT] else "none",
+            "pressure_ok_m": inputs[PRESSURE],
+        }
+
+    async def _drive(self, lock: bool, *, connecting: bool = False) -> None:
+        values = [lock, not lock]
+        await self.link.write_coils(self.coil_base, values, connecting=connecting)
+        back = await self.link.read_coils(self.coil_base, 2, connecting=connecting)
+        if back != values:
+            raise DeviceUnavailable(
+                f"{self.resource}: solenoids not read back: wrote lock={int(values[0])} unlock={int(values[1])}, "
+                f"read lock={int(back[0])} unlock={int(back[1])}"
+            )
+
+    async def _on_connect(self, link: ModbusLink) -> None:
+        await link.read_discrete_inputs(self.di_base, N_INPUTS, connecting=True)
+        if self._desired_lock is not None:
+            # The coupler answers; a read-back problem shows on the next write and in the selftest.
+            with contextlib.suppress(DeviceUnavailable):
+                await self._drive(self._desired_lock, connecting=True)
+
+
+def from_params(resource: str, params: Mapping[str, Any]) -> RspModbus:
+    return RspModbus(
+        resource,
+        host=str(require(params, "host")),
+        port=int(params.get("port", 502)),
+        device_id=int(params.get("device_id", 1)),
+        coil_base=int(params.get("coil_base", 0)),
+        di_base=int(params.get("di_base", 0)),
+        timeout=float(params.get("timeout", 1.0)),
+        backoff=Backoff.from_params(params),
+    )

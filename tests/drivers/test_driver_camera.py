@@ -1,0 +1,148 @@
+"""Safety-camera driver (tracker feed, TCP JSON lines) against the simulated tracker."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+from drvtest import eventually, read_until
+
+from hubs.drivers import make_driver
+from hubs.drivers.base import DeviceUnavailable
+from hubs.drivers.camera_tracker import CameraTracker, parse_frame, parse_rects, zone_of
+from hubs.drivers.reconnect import Backoff
+from hubs.sim.camera_tracker import CameraTrackerSim
+
+REPO = Path(__file__).resolve().parents[2]
+FAST = Backoff(initial=0.02, maximum=0.2)
+ZONES = {"shared": [[0, 0, 2, 2]], "robot": [[2, 0, 4, 2], [10, 10, 11, 11]]}
+
+
+@pytest.fixture
+async def tracker() -> AsyncIterator[CameraTrackerSim]:
+    sim = CameraTrackerSim(rate=50.0)
+    await sim.start()
+    yield sim
+    await sim.stop()
+
+
+@pytest.fixture
+async def driver(tracker: CameraTrackerSim) -> AsyncIterator[CameraTracker]:
+    drv = CameraTracker("cam", host="127.0.0.1", port=tracker.port, zones=ZONES, stale_after=0.3, backoff=FAST)
+    await drv.connect()
+    assert await drv.link.wait_connected(5)
+    yield drv
+    await drv.close()
+
+
+def test_zones_and_frames() -> None:
+    zones = parse_rects(ZONES)
+    assert zone_of(-1, 1, zones) == "outside"
+    assert zone_of(1, 1, zones) == "shared"
+    assert zone_of(2, 1, zones) == "robot"  # on the border: the more restrictive zone
+    assert zone_of(10.5, 10.5, zones) == "robot"
+    assert parse_frame(b'{"v": 1, "seq": 1, "t": 0, "people": [{"id": 1, "x": 1, "y": 2}]}\n') == [(1.0, 2.0)]
+    for bad in (b"nonsense\n", b'{"v": 2, "people": []}\n', b'{"v": 1, "people": [{"id": 1}]}\n'):
+        with pytest.raises(ValueError):
+            parse_frame(bad)
+    with pytest.raises(ValueError, match="unknown zone"):
+        parse_rects({"kitchen": [[0, 0, 1, 1]]})
+
+
+async def test_operator_walks_through_the_zones(driver: CameraTracker, tracker: CameraTrackerSim) -> None:
+    assert dict(await driver.read()) == {"zone_m": "outside"}  # nobody in view
+    tracker.set_person(1, -1.0, 1.0)
+    await read_until(driver, zone_m="outside")
+    tracker.set_person(1, 1.0, 1.0)
+    await read_until(driver, zone_m="shared")
+    tracker.set_person(2, 3.0, 1.0)  # a second person in the robot zone wins
+    await read_until(driver, zone_m="robot")
+    tracker.remove_person(2)
+    await read_until(driver, zone_m="shared")
+
+
+async def test_hung_tracker_is_a_lost_device(driver: CameraTracker, tracker: CameraTrackerSim) -> None:
+    tracker.set_person(1, 3.0, 1.0)
+    tracker.freeze()
+    await eventually(lambda: not driver.connected, timeout=5)
+    with pytest.raises(DeviceUnavailable):
+        await driver.read()  # never the last zone
+    tracker.freeze(False)
+    await eventually(lambda: driver.connected)
+    assert dict(await driver.read()) == {"zone_m": "robot"}
+
+
+async def test_tracker_vanishes_and_returns(driver: CameraTracker, tracker: CameraTrackerSim) -> None:
+    tracker.set_person(1, 1.0, 1.0)
+    await read_until(driver, zone_m="shared")
+    await tracker.stop()
+    await eventually(lambda: not driver.connected)
+    with pytest.raises(DeviceUnavailable):
+        await driver.read()
+    tracker.set_person(1, 3.5, 0.5)
+    await tracker.start()
+    await read_until(driver, zone_m="robot")
+    assert driver.link.connects >= 2
+
+
+async def test_bad_lines_are_ignored_and_counted(driver: CameraTracker, tracker: CameraTrackerSim) -> None:
+    for writer in list(tracker._writers):
+        writer.write(b'garbage\n{"v": 7}\n')
+    await eventually(lambda: driver.stats["bad_frames"] == 2)
+    assert driver.connected and (await driver.read())["zone_m"] == "outside"
+
+
+async def test_selftest_passes(driver: CameraTracker) -> None:
+    report = await driver.selftest()
+    assert report.ok, report
+
+
+async def test_selftest_fails_when_tracker_absent(tracker: CameraTrackerSim) -> None:
+    port = tracker.port
+    await tracker.stop()
+    drv = make_driver("cam", "camera", "sim", {"port": port, "reconnect_min": 0.05})
+    await drv.connect()
+    try:
+        report = await drv.selftest()
+        assert not report.ok and str(port) in report.checks[0].detail
+    finally:
+        await drv.close()
+
+
+async def test_selftest_fails_when_tracker_silent(tracker: CameraTrackerSim) -> None:
+    tracker.freeze()
+    drv = make_driver("cam", "camera", "sim", {"port": tracker.port, "stale_after": 0.2, "reconnect_min": 0.05})
+    await drv.connect()
+    try:
+        report = await drv.selftest()
+        assert not report.ok and "no tracker frame" in report.checks[0].detail
+    finally:
+        await drv.close()
+
+
+async def test_simulator_as_a_process() -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "hubs.sim.camera_tracker", "--port", "0", "--walk", "4", "--rate", "50"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    try:
+        assert proc.stdout is not None
+        line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 15)
+        drv = make_driver("cam", "camera", "sim", {"port": int(line.rsplit(":", 1)[1]), "reconnect_min": 0.05})
+        await drv.connect()
+        try:
+            await read_until(drv, zone_m="outside")
+            await read_until(drv, zone_m="shared", timeout=10)
+            proc.kill()
+            proc.wait()
+            await eventually(lambda: not drv.connected)
+        finally:
+            await drv.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
