@@ -110,6 +110,13 @@ class Engine:
         self.op_start = {op.name: compiled.by_name[f"{op.state_path}.start"] for op in model.operations}
         self.op_finish = {op.name: compiled.by_name[f"{op.state_path}.finish"] for op in model.operations}
         self.command_indices = tuple(compiled.index[p] for p in model.paths_of_kind(Kind.COMMAND))
+        # Tracking transitions (automatic, writing estimated variables only) are the controller's record
+        # of what it observed; they command nothing, so an unhealthy resource does not hold them back.
+        # Held back, the observation would be lost while the healthy devices go on (the nutrunner
+        # resets after torque while the robot's hub is stale: the bolt is never recorded and is
+        # tightened again).
+        estimated = {compiled.index[p] for p in model.paths_of_kind(Kind.ESTIMATED)}
+        self.tracking = frozenset(t.name for t in compiled.automatic if t.writes and t.writes <= estimated)
 
     def tick(
         self,
@@ -156,7 +163,7 @@ class Engine:
     # --- stage 2 ----------------------------------------------------------------------
     def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str]) -> None:
         def is_disabled(t: CompiledTransition) -> bool:
-            return bool(t.resources & disabled)
+            return bool(t.resources & disabled) and t.name not in self.tracking
 
         state, fired = self.compiled.close(result.state, is_disabled if disabled else None)
         result.fired += [t.name for t in fired]
