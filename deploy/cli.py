@@ -218,6 +218,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     check = with_model(sub.add_parser("check", help="validate the model and every operation's reachability"))
     check.set_defaults(func=cmd_check)
+
+    from .commands import register_deploy_commands
+
+    register_deploy_commands(sub)
     return parser
 
 
