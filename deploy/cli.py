@@ -125,6 +125,18 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 0 if summary.finished else 1
 
 
+def _overrides(args: argparse.Namespace) -> dict[str, dict[str, object]] | None:
+    """The --params-file of `hub` and `selftest`: {resource: {parameter: value}}, merged into hubs.toml's."""
+    if not args.params_file:
+        return None
+    from hubs.factory import load_overrides
+
+    try:
+        return load_overrides(args.params_file)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def cmd_hub(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -132,7 +144,8 @@ def cmd_hub(args: argparse.Namespace) -> int:
 
     setup_logging(args.name, args.verbose)
     return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
-                               seed=args.seed, mode=args.mode, failure=_failures(args.failure)))
+                               seed=args.seed, mode=args.mode, failure=_failures(args.failure),
+                               overrides=_overrides(args)))
 
 
 def cmd_controller(args: argparse.Namespace) -> int:
@@ -150,7 +163,7 @@ def cmd_selftest(args: argparse.Namespace) -> int:
 
     from .processes import run_selftest
 
-    return asyncio.run(run_selftest(args.config, args.name, mode=args.mode))
+    return asyncio.run(run_selftest(args.config, args.name, mode=args.mode, overrides=_overrides(args)))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -194,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     hub.add_argument("--seed", type=int, default=0)
     hub.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P")
     hub.add_argument("--loopback-port", type=int, help="run on loopback, the controller listening on this port")
+    hub.add_argument("--params-file", metavar="FILE",
+                     help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
     hub.add_argument("-v", "--verbose", action="store_true")
     hub.set_defaults(func=cmd_hub)
 
@@ -208,6 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     selftest = with_config(sub.add_parser("selftest", help="run a hub's self-test; exit 1 on a failure"))
     selftest.add_argument("name", help="the hub, e.g. pi-tool")
     selftest.add_argument("--mode", choices=modes, help="override every device's mode")
+    selftest.add_argument("--params-file", metavar="FILE",
+                          help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
     selftest.set_defaults(func=cmd_selftest)
 
     plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
@@ -222,6 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .commands import register_deploy_commands
 
     register_deploy_commands(sub)
+
+    from .modeltest.cli import register_test_command
+
+    register_test_command(sub)
     return parser
 
 
