@@ -52,6 +52,7 @@ class ControlCore:
         self.disabled: frozenset[str] = frozenset()
         self.progress: PlanProgress | None = None
         self.planned_goals: frozenset[str] = frozenset()
+        self.requested_goals: frozenset[str] = frozenset()  # of the plan under way
         self.generation = 0
         self.planning = False
         self.need_plan_reason: str | None = "start"
@@ -117,7 +118,7 @@ class ControlCore:
             for name in result.finished:
                 self.errors.pop(name, None)
         goals = frozenset(self.goals())
-        if goals != self.planned_goals:
+        if goals != self.planned_goals and not (self.planning and goals == self.requested_goals):
             self._want_plan("goals changed")
         if self.progress is not None and self.progress.complete and goals == self.planned_goals and goals:
             # Completed plan whose goals do not hold: the world moved on; plan again.
@@ -144,6 +145,7 @@ class ControlCore:
         goals = self.goals()
         self.generation += 1
         self.planning = True
+        self.requested_goals = frozenset(goals)
         if self.need_plan_reason != "start" and goals:
             self.events.replans += 1
             self.events.log.append(f"replan: {self.need_plan_reason}")

@@ -6,6 +6,8 @@ import asyncio
 import logging
 import signal
 import sys
+from collections.abc import Mapping
+from typing import Any
 
 from common.bus import Bus, zenoh_config_for
 from common.config import NetworkConfig, StationConfig, load_station
@@ -33,7 +35,8 @@ def network(config: StationConfig, process: str, loopback_port: int | None) -> N
 
 
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
-                  seed: int = 0, mode: str | None = None, failure: dict[str, float] | None = None) -> int:
+                  seed: int = 0, mode: str | None = None, failure: dict[str, float] | None = None,
+                  overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
     from hubs.factory import build_drivers
     from hubs.runtime import HubRuntime
 
@@ -41,7 +44,8 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     settings = config.hubs.get(hub)
     if settings is None:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
-    drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure)
+    drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
+                            overrides=overrides)
     stop = stop_on_signals()
     async with Bus(zenoh_config_for(network(config, hub, loopback_port))) as bus:
         runtime = HubRuntime(hub=hub, station=config.station.name, model=model, drivers=drivers, bus=bus,
@@ -72,13 +76,14 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
     return 0
 
 
-async def run_selftest(config_path: str, hub: str, *, mode: str | None = None) -> int:
+async def run_selftest(config_path: str, hub: str, *, mode: str | None = None,
+                       overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
     from hubs.factory import build_drivers
     from hubs.selftest import format_report
     from hubs.selftest import run_selftest as selftest
 
     config, model = load_station(config_path)
-    drivers = build_drivers(config, hub, model, mode=mode)
+    drivers = build_drivers(config, hub, model, mode=mode, overrides=overrides)
     report = await selftest(hub, drivers)
     print(format_report(report))
     return 0 if report.ok else 1

@@ -178,6 +178,15 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    world = None
+    if options.mode == "sim":  # the simulators, coupled; each hub is told where its devices' simulators are
+        from .simworld import start_world
+
+        world = await start_world(config, model, options, port, say)
+        if world is None:
+            return 1
+        for child in children:
+            child.argv += world.hub_args(child.name)
     for child in children:
         await _start(child)
     progress = Progress(say, len(model.operations))
@@ -216,6 +225,8 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
                     break
     finally:
         await _stop(children)
+        if world is not None:
+            await world.stop()
     elapsed = time.monotonic() - began
     if last is not None:
         done = sum(1 for op in last.operations if op.state == "finished")

@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import msgspec
 
 from common.bus import Bus, Keys, Request
-from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, encode
+from common.ctl import StateSnapshot
+from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 from common.model import Kind, Model, Value
 
 from .drivers.base import DeviceUnavailable, Driver, SelftestReport
@@ -168,13 +169,15 @@ class HubRuntime:
     # --- inputs of emulated devices that depend on other resources -------------------------
     async def _external_inputs(self) -> None:
         wanted: dict[str, set[str]] = {}
+        estimated: set[str] = set()
         for slot in self.slots.values():
             for path in getattr(slot.driver, "inputs", ()):
-                wanted.setdefault(path.split(".", 1)[0], set()).add(path)
-        if not wanted:
-            return
+                if self.model.var(path).kind is Kind.ESTIMATED:
+                    estimated.add(path)  # the controller's (e.g. engine.frame_e): from its state snapshots
+                else:
+                    wanted.setdefault(path.split(".", 1)[0], set()).add(path)
+        subscriptions = [self._follow_estimated(estimated)] if estimated else []
         codecs = {r: Codec(self.model.resource_by_name[r]) for r in wanted}
-        subscriptions = []
         for resource, paths in wanted.items():
             kinds = {self.model.var(p).kind for p in paths}
             if Kind.MEASURED in kinds:
@@ -182,6 +185,19 @@ class HubRuntime:
             if Kind.COMMAND in kinds:
                 subscriptions.append(self._follow(resource, codecs[resource], "cmd"))
         await asyncio.gather(*subscriptions)
+
+    async def _follow_estimated(self, paths: set[str]) -> None:
+        async for sample in self.bus.subscribe(self.keys.ctl("state")):
+            try:
+                snapshot = decode(sample.payload, StateSnapshot)
+            except MessageError as exc:
+                log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
+                continue
+            values = {p: v for p, v in snapshot.values.items() if p in paths}
+            for slot in self.slots.values():
+                observe = getattr(slot.driver, "observe", None)
+                if observe is not None and values:
+                    observe(values)
 
     async def _follow(self, resource: str, codec: Codec, what: str) -> None:
         key = self.keys.state(resource) if what == "state" else self.keys.cmd(resource)

@@ -31,11 +31,13 @@ def _nutrunner(resource: str, mode: str, params: Mapping[str, Any]) -> Driver:
         from hubs.sim import mcp23017 as sim
 
         bus, address = int(params.get("bus", 1)), int(params.get("address", 0x20))
+        timing = {k[4:]: float(v) for k, v in params.items() if k in ("sim_spinup", "sim_tighten", "sim_reset")}
         sim.ensure_nutrunner(
             bus,
             address,
             fail_probability=float(params.get("sim_fail_probability", 0.0)),
             seed=int(params.get("sim_seed", 0)),
+            timing=sim.NutrunnerTiming(**timing),
         )
         return mod.from_params(resource, params, bus_factory=sim.sim_bus(bus).open)
     return mod.from_params(resource, params)

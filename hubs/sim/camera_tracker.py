@@ -11,7 +11,14 @@ Positions are station coordinates in metres.  In-process: ``CameraTrackerSim``
 keeps the connection but sends nothing, ``stop``/``start`` on the same port).  As a
 process: ``python -m hubs.sim.camera_tracker --port 7001 [--walk]`` prints
 ``listening on HOST:PORT``; ``--walk [SPEED]`` moves one operator back and forth along y = 1 m
-from x = -2 to x = 4 at SPEED m/s (0.5) so that a station run sees all zones.
+from x = -2 to x = 4 at SPEED m/s (0.5) so that a station run sees all zones; ``--control``
+reads the people in view from stdin instead, one JSON object per line (what the simulated
+world of ``deploy/simworld.py`` sends as its operator walks)::
+
+    {"person": 1, "x": 1.0, "y": 3.0}      # person 1 is (now) at x, y
+    {"person": 1, "remove": true}          # person 1 left the view
+
+Bad lines are reported on stderr and ignored.
 """
 
 from __future__ import annotations
@@ -102,11 +109,39 @@ class CameraTrackerSim:
         return self._server is not None
 
 
-async def _serve(host: str, port: int, rate: float, walk: float) -> None:
+def apply_control(sim: CameraTrackerSim, line: str) -> str | None:
+    """One ``--control`` line applied to ``sim``; the problem with it, or None."""
+    try:
+        request = json.loads(line)
+        person = int(request["person"])
+        if request.get("remove"):
+            sim.remove_person(person)
+        else:
+            sim.set_person(person, float(request["x"]), float(request["y"]))
+    except (ValueError, KeyError, TypeError) as exc:
+        return f"ignored control line {line.strip()!r}: {type(exc).__name__}: {exc}"
+    return None
+
+
+async def _follow_stdin(sim: CameraTrackerSim) -> None:
+    loop = asyncio.get_running_loop()
+    reader = asyncio.StreamReader()
+    await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    while line := await reader.readline():
+        if line.strip():
+            problem = apply_control(sim, line.decode(errors="replace"))
+            if problem:
+                print(problem, file=sys.stderr, flush=True)
+
+
+async def _serve(host: str, port: int, rate: float, walk: float, control: bool = False) -> None:
     sim = CameraTrackerSim(host, port, rate)
     bound = await sim.start()
     print(f"listening on {host}:{bound}", flush=True)
     try:
+        if control:
+            await _follow_stdin(sim)  # returns when stdin closes: the world is gone
+            return
         start = time.monotonic()
         while True:
             if walk:  # triangle wave between x = -2 and x = 4
@@ -131,9 +166,10 @@ def main(argv: list[str] | None = None) -> int:
         metavar="SPEED",
         help="one operator walking through all zones (m/s, default 0.5)",
     )
+    parser.add_argument("--control", action="store_true", help="read the people in view from stdin (JSON lines)")
     args = parser.parse_args(argv)
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(_serve(args.host, args.port, args.rate, args.walk))
+        asyncio.run(_serve(args.host, args.port, args.rate, args.walk, args.control))
     return 0
 
 

@@ -5,7 +5,7 @@ discrete-input, holding- and input-register blocks, bit addressing) whose access
 runs the physics lazily from the clock on every request.  Runs in-process (asyncio,
 ``ToolChangerServer``) or as a process::
 
-    python -m hubs.sim.toolchanger_modbus --host 127.0.0.1 --port 5020
+    python -m hubs.sim.toolchanger_modbus --host 127.0.0.1 --port 5020 [--stroke-time S]
 
 (``--port 0`` picks a free port; the first line printed is ``listening on HOST:PORT``.)
 
@@ -26,6 +26,7 @@ discrete   9     dock slot 2 occupied (lift_tool home)
 discrete   10    dock slot 3 occupied (filter_tool home)
 holding    0     SIMULATOR ONLY: robot flange position, 0 = away, n = at dock slot n
 holding    1     SIMULATOR ONLY: air supply on (1) / off (0)
+holding    2     SIMULATOR ONLY: tools the operator takes by hand (bit n-1: the tool of slot n)
 =========  ====  =============================================================
 
 Physics: the piston moves only with air pressure, toward *locked* while only the lock
@@ -58,7 +59,7 @@ TOOLS = ("nutrunner", "lift_tool", "filter_tool")  # tool code n+1, dock slot n+
 COIL_LOCK, COIL_UNLOCK = 0, 1
 DI_LOCKED, DI_UNLOCKED, DI_PRESSURE, DI_PRESENT, DI_CODE0, DI_CODE1 = 0, 1, 2, 3, 4, 5
 DI_DOCK = 8
-HR_FLANGE, HR_AIR = 0, 1
+HR_FLANGE, HR_AIR, HR_HAND = 0, 1, 2
 N_BITS = 32  # two 16-bit words per bit table
 FC_READ_COILS, FC_WRITE_COIL, FC_WRITE_COILS = 1, 5, 15
 FC_READ_DI = 2
@@ -94,6 +95,8 @@ class ToolChangerPhysics:
     flange_slot: int = 0  # 0 away, 1..3 at dock slot
     attached: str | None = None
     in_dock: dict[str, bool] = field(default_factory=lambda: dict.fromkeys(TOOLS, True))
+    hand: set[str] = field(default_factory=set)  # tools the operator wants to hold (holding register 2)
+    in_hand: set[str] = field(default_factory=set)  # tools the operator holds
     stuck_coils: dict[int, bool] = field(default_factory=dict)
     module_error: bool = False
     _last: float | None = None
@@ -120,6 +123,10 @@ class ToolChangerPhysics:
         now = self.clock()
         dt = now - (self._last if self._last is not None else now)
         self._last = now
+        self._move_piston(dt)
+        self._hands()
+
+    def _move_piston(self, dt: float) -> None:
         coils = self.effective_coils()
         lock, unlock = coils[COIL_LOCK], coils[COIL_UNLOCK]
         if not self.pressure or lock == unlock or dt <= 0:
@@ -134,6 +141,24 @@ class ToolChangerPhysics:
         if was_locked and self.piston < 1.0 and self.attached is not None:
             tool, self.attached = self.attached, None
             self.in_dock[tool] = self.flange_slot == TOOLS.index(tool) + 1  # else: dropped
+
+    def _hands(self) -> None:
+        """The operator takes a wanted tool out of its slot (never one coupled to the robot) and puts it back."""
+        for tool in TOOLS:
+            if tool in self.hand and tool not in self.in_hand and self.in_dock[tool] and self.attached != tool:
+                self.in_dock[tool] = False
+                self.in_hand.add(tool)
+            elif tool not in self.hand and tool in self.in_hand:
+                self.in_hand.discard(tool)
+                self.in_dock[tool] = True
+
+    def hand_mask(self) -> int:
+        return sum(1 << i for i, tool in enumerate(TOOLS) if tool in self.hand)
+
+    def set_hand(self, mask: int) -> None:
+        self.update()
+        self.hand = {tool for i, tool in enumerate(TOOLS) if mask >> i & 1}
+        self._hands()
 
     def move_flange(self, slot: int) -> None:
         self.update()
@@ -202,16 +227,17 @@ class ToolChangerServer:
             current_registers[:] = _pack(sim.discrete_inputs())
         elif function_code in FC_HOLDING:
             if set_values is not None:
-                regs = [sim.flange_slot, int(sim.pressure), 0, 0]
+                regs = [sim.flange_slot, int(sim.pressure), sim.hand_mask(), 0]
                 for i, value in enumerate(set_values):
                     if address + i < len(regs):
                         regs[address + i] = int(value)
-                if not 0 <= regs[HR_FLANGE] <= 3:
+                if not 0 <= regs[HR_FLANGE] <= 3 or not 0 <= regs[HR_HAND] < 1 << len(TOOLS):
                     return ExcCodes.ILLEGAL_VALUE
                 sim.update()
                 sim.pressure = bool(regs[HR_AIR])
                 sim.move_flange(regs[HR_FLANGE])
-            current_registers[:] = [sim.flange_slot, int(sim.pressure), 0, 0]
+                sim.set_hand(regs[HR_HAND])
+            current_registers[:] = [sim.flange_slot, int(sim.pressure), sim.hand_mask(), 0]
         return None
 
     def _device(self) -> SimDevice:
@@ -255,8 +281,9 @@ class ToolChangerServer:
         await self.stop()
 
 
-async def _serve(host: str, port: int, holding: str | None) -> None:
-    physics = ToolChangerPhysics.holding(holding) if holding else ToolChangerPhysics()
+async def _serve(host: str, port: int, holding: str | None, stroke_time: float) -> None:
+    physics = (ToolChangerPhysics.holding(holding, stroke_time=stroke_time) if holding
+               else ToolChangerPhysics(stroke_time=stroke_time))
     server = ToolChangerServer(physics, host, port)
     bound = await server.start()
     print(f"listening on {host}:{bound}", flush=True)
@@ -271,9 +298,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
     parser.add_argument("--holding", choices=TOOLS, help="start with this tool coupled and locked")
+    parser.add_argument("--stroke-time", type=float, default=0.15, help="s per piston stroke (0.15)")
     args = parser.parse_args(argv)
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(_serve(args.host, args.port, args.holding))
+        asyncio.run(_serve(args.host, args.port, args.holding, args.stroke_time))
     return 0
 
 

@@ -40,7 +40,9 @@ It prints ``ready HOST`` once every port listens.  Served:
   "speed": m/s}`` (solved by numeric IK, then moved in joint space), ``{"cmd": "stop"}``,
   ``{"cmd": "protective_stop"}`` (a collision), ``{"cmd": "freeze", "on": bool}`` (RTDE
   data stops, connections stay: a hung controller), ``{"cmd": "remote_control", "on":
-  bool}`` (moves are refused in local mode), ``{"cmd": "state"}``.
+  bool}`` (moves are refused in local mode), ``{"cmd": "state"}`` (everything, for tests),
+  ``{"cmd": "pose"}`` (only ``q`` and ``moving``: what a simulated cell polls to know
+  where the flange is).
 
 Motion: joint-space linear interpolation, all joints arriving together, leading joint
 at ``speed`` rad/s; it stops on ``stop`` (command port or dashboard), on a protective
@@ -756,6 +758,8 @@ class FakeController:
         if cmd == "remote_control":
             robot.remote_control = bool(request.get("on", True))
             return {"ok": True}
+        if cmd == "pose":
+            return {"ok": True, "q": robot.q, "moving": robot.moving}
         if cmd == "state":
             return {
                 "ok": True,

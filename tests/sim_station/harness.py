@@ -1,0 +1,171 @@
+"""Sim-mode hubs without a controller: the test commands the devices itself and watches what they measure.
+
+    async with SimCell(config_path, tmp_path, speed=3) as cell:   # sim world + every hub, --mode sim
+        cell.command("ur", ref_pos_c="dock_lift_tool")             # re-sent at 10 Hz, like the controller
+        await cell.wait("ur.pos_m", "dock_lift_tool")
+        assert cell.trace("ur.pos_m") == ["home", "unknown", "dock_lift_tool"]
+
+The test's bus listens where the controller would (`--loopback-port`); every hub runs as
+`python -m deploy.cli hub NAME --mode sim --params-file ...`, as `hubctl up --mode sim`
+starts them, and the simulated world (`deploy.simworld`) couples the simulators through
+the same bus. Every measured value the hubs publish is recorded in order (no
+coalescing), so a test can compare a variable's trace with the model's effects.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from common.bus import Bus, Keys, zenoh_config
+from common.config import load_station
+from common.messages import Codec, MessageError
+from common.model import Value
+from deploy.simworld import SimWorld
+from deploy.station import free_port
+
+ROOT = Path(__file__).resolve().parents[2]
+COMMAND_PERIOD_S = 0.1
+
+
+class SimCell:
+    def __init__(self, config_path: str | Path, run_dir: Path, *, speed: float = 1.0) -> None:
+        self.config, self.model = load_station(config_path)
+        self.config_path = str(config_path)
+        self.run_dir = run_dir
+        self.speed = speed
+        self.port = free_port()
+        self.keys = Keys(self.config.station.name)
+        self.codecs = {r.name: Codec(r) for r in self.model.resources}
+        self.commands: dict[str, dict[str, Value]] = {
+            r.name: {v.name: v.initial for v in r.commands} for r in self.model.resources}  # type: ignore[misc]
+        self.values: dict[str, Value | None] = {}
+        self.history: dict[str, list[Value | None]] = {}
+        self.world: SimWorld | None = None
+        self.hubs: dict[str, asyncio.subprocess.Process] = {}
+        self._bus: Bus | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._seq = 0
+        self._changed = asyncio.Event()
+
+    async def __aenter__(self) -> SimCell:
+        self._bus = Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{self.port}"],
+                                     lease_ms=self.config.network.lease_ms))
+        await self._bus.open()
+        self._tasks = [asyncio.create_task(self._record()), asyncio.create_task(self._send_commands())]
+        self.world = SimWorld(self.config, self.model, self.run_dir / "sim", speed=self.speed,
+                              loopback_port=self.port, say=lambda _line: None)
+        await self.world.start()
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        for hub in self.config.hubs:
+            argv = [sys.executable, "-m", "deploy.cli", "hub", hub, "--config", self.config_path, "--mode", "sim",
+                    "--speed", str(self.speed), "--loopback-port", str(self.port), *self.world.hub_args(hub)]
+            with (self.run_dir / f"{hub}.log").open("wb") as log:
+                self.hubs[hub] = await asyncio.create_subprocess_exec(
+                    *argv, stdout=log, stderr=asyncio.subprocess.STDOUT, cwd=ROOT, env=env, start_new_session=True)
+        await self.wait_all_measured()
+        return self
+
+    async def wait_all_measured(self, timeout: float = 60.0) -> None:
+        """Until every device of every hub answers (every measured variable known)."""
+        paths = [v.path for r in self.model.resources for v in r.measured]
+        deadline = time.monotonic() + timeout
+        while any(self.values.get(p) is None for p in paths):
+            if time.monotonic() > deadline:
+                unknown = [p for p in paths if self.values.get(p) is None]
+                raise AssertionError(f"devices do not answer within {timeout} s: {unknown} unknown; "
+                                     f"hubs exited: {self.dead_hubs()}; logs in {self.run_dir}")
+            await asyncio.sleep(0.1)
+
+    async def __aexit__(self, *_exc: object) -> None:
+        for process in self.hubs.values():
+            with contextlib.suppress(ProcessLookupError):
+                process.send_signal(signal.SIGTERM)
+        for process in self.hubs.values():
+            try:
+                await asyncio.wait_for(process.wait(), 5)
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    process.kill()
+                await process.wait()
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if self.world is not None:
+            await self.world.stop()
+        if self._bus is not None:
+            await self._bus.close()
+
+    # --- commanding and watching ------------------------------------------------------------
+    def command(self, resource: str, **values: Value) -> None:
+        """Set command variables of `resource`; the whole command is re-sent every 0.1 s."""
+        self.commands[resource].update(values)
+        self._publish(resource)
+
+    def _publish(self, resource: str) -> None:
+        assert self._bus is not None
+        self._seq += 1
+        codec = self.codecs[resource]
+        message = codec.command(self.commands[resource], seq=self._seq, controller="sim-test")
+        self._bus.publish(self.keys.cmd(resource), codec.encode_command(message))
+
+    async def _send_commands(self) -> None:
+        while True:
+            for resource, values in self.commands.items():
+                if values:
+                    self._publish(resource)
+            await asyncio.sleep(COMMAND_PERIOD_S)
+
+    async def _record(self) -> None:
+        assert self._bus is not None
+        async for sample in self._bus.subscribe(self.keys.all_state, coalesce=False):
+            resource = self.keys.resource_of(sample.key)
+            codec = self.codecs.get(resource or "")
+            if codec is None:
+                continue
+            try:
+                state = codec.decode_state(sample.payload)
+            except MessageError:
+                continue
+            for path, value in codec.values(state, paths=True).items():
+                if self.values.get(path, "never") != value:
+                    self.values[path] = value
+                    self.history.setdefault(path, []).append(value)
+                    self._changed.set()
+
+    def trace(self, path: str, since: int = 0) -> list[Value]:
+        """The values `path` took (from the `since`-th change on), repeats and unknowns (None) left out."""
+        out: list[Value] = []
+        for value in self.history.get(path, [])[since:]:
+            if value is not None and (not out or out[-1] != value):
+                out.append(value)
+        return out
+
+    def mark(self, path: str) -> int:
+        """Where `path`'s history stands now: pass it to `trace(path, since=...)`."""
+        return max(0, len(self.history.get(path, [])) - 1)
+
+    async def wait(self, path: str, value: Value, timeout: float = 20.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.values.get(path) != value:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"{path} did not become {value!r} within {timeout} s; it is "
+                                     f"{self.values.get(path)!r}, trace {self.trace(path)}; now: {self.snapshot()}")
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), min(remaining, 0.5))
+
+    def snapshot(self) -> dict[str, Any]:
+        return {p: v for p, v in sorted(self.values.items()) if not p.startswith(("agv.", "human."))}
+
+    def dead_hubs(self) -> list[str]:
+        return [hub for hub, p in self.hubs.items() if p.returncode is not None]
