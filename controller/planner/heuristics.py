@@ -1,0 +1,387 @@
+"""An admissible heuristic for a conjunction of goal atoms, built from projections.
+
+The goal is split into atoms (its conjuncts). Two kinds of groups bound the steps left:
+
+* **Conjunction group** (pattern database): a projection that contains the atoms'
+  variables; the value is the abstract distance to the conjunction of the atoms.
+* **Tour group**: single-variable atoms `x == v` whose variable is read only by their
+  own achievers (a bolt's tracking variable). The projection leaves all those
+  variables out, so many atoms share it; an atom is reached by firing one of its
+  achievers. Every unsatisfied atom j needs a last achievement step; order the atoms
+  by it: the segment ending with j's begins at the start or right after the previous
+  atom's achievement, and segments are disjoint in time. A segment costs at least the
+  abstract distance from where it begins to a state where j's achiever can fire, plus
+  that step. So the plan costs at least a shortest Hamiltonian path from the start
+  through the atoms, with edge costs `D_j(s)` (from the start) and `W(i, j)` (from
+  the states after i's achievers). We bound that path from below: one atom comes
+  first, every other atom has its cheapest incoming edge (the lower bound of the design
+  note), and a minimum arborescence between *classes* of atoms that behave identically
+  in the projection (bolts at one pose) adds the travel between classes. Potentials on
+  the states where achievers fire keep work done ahead of time (the robot sent on
+  before the tightening ends) from being dropped by both neighbouring segments.
+
+Each family of atoms gets a few projections (its cone up to a cap, then one per
+resource the cone left out) and the unit cost of every transition is given to exactly
+one of them (zero-one cost partitioning), so all groups add up. Finally no step can
+make more than k atoms true, so ceil(unsatisfied / k) is a bound too.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+from common.model import FALSE, TRUE, And, Const, Predicate, Ref
+from common.model.compiled import CompiledTransition, State, predicate_source
+
+from .abstraction import INF, Abstraction, rename
+from .steps import StepSystem
+from .tours import Achiever, TourGroup, generate
+
+DEFAULT_CAP = 20_000  # the largest projection, in abstract states
+
+
+def goal_atoms(goals: Iterable[Predicate]) -> list[Predicate]:
+    """The conjuncts of the goals, without duplicates or `true`."""
+    atoms: list[Predicate] = []
+
+    def add(p: Predicate) -> None:
+        if isinstance(p, And):
+            for item in p.items:
+                add(item)
+        elif p != TRUE and p not in atoms:
+            atoms.append(p)
+
+    for goal in goals:
+        add(goal)
+    return atoms
+
+
+def achievers(system: StepSystem, atom: Predicate, path: str) -> list[Achiever]:
+    """Steps that can make a one-variable atom true, each with the condition (before it) under which they do."""
+    found: list[Achiever] = []
+    for t in system.transitions:
+        for outcome, actions in enumerate(t.source.outcomes):
+            for action in actions:
+                if action.path != path:
+                    continue
+                if isinstance(action.value, Ref):
+                    found.append((t, outcome, rename(atom, path, action.value.path)))
+                elif atom.eval({path: action.value}):
+                    found.append((t, outcome, TRUE))
+    return found
+
+
+class ConjunctionGroup:
+    """A pattern database: the abstract distance to the conjunction of atoms inside the projection."""
+
+    def __init__(self, abstraction: Abstraction, atoms: Sequence[Predicate]) -> None:
+        self.abstraction = abstraction
+        self.atoms = tuple(atoms)
+        self.goal = atoms[0] if len(atoms) == 1 else And(tuple(atoms))
+        self._goal_states: list[int] | None = None
+        self.table: list[int] = []
+        self.index = abstraction.index
+        self._version = -1
+
+    def prepare(self, start: State) -> None:
+        abstraction = self.abstraction
+        abstraction.reach_from_initial()
+        abstraction.reach_from(self.index(start))
+        if self._version != abstraction.reachable_version:
+            if self._goal_states is None:
+                self._goal_states = abstraction.states_where(self.goal)
+            goal_states = self._goal_states
+            self.table = abstraction.distances(("holds", self.goal), lambda: ((x, 0) for x in goal_states))
+            self._version = abstraction.reachable_version
+
+    def value(self, s: State) -> int:
+        return self.table[self.index(s)]
+
+    def __str__(self) -> str:
+        return f"{' && '.join(map(str, self.atoms))} over [{self.abstraction.describe()}]"
+
+
+Group = ConjunctionGroup | TourGroup
+
+
+@dataclass
+class HeuristicOptions:
+    cap: int = DEFAULT_CAP
+    tours: bool = True  # share projections between one-variable atoms (else one database per atom)
+    arborescence: bool = True  # the class arborescence on top of the cheapest incoming edges
+    patterns: int = 4  # per family of atoms: its cone, then resource patterns for what the cone left out
+    potential: int = 1  # tour bounds: steps of work ahead a firing state may carry (0: no potentials)
+
+
+class GoalHeuristic:
+    """h(s) for one goal conjunction; built once, then cheap per state.
+
+    Atoms come in families (tour atoms whose achievers read the same variables; inside
+    atoms merged while their cones fit under the cap). Each family gets a few patterns:
+    first its cone, nearest variables first, up to the cap; then, for every resource with
+    cone variables left out, a pattern of that resource's variables with the family's seed.
+    Costs are partitioned zero-one (`_partition`): a transition costs 1 in one pattern
+    and 0 in the others, so all the patterns' values add up.
+    """
+
+    def __init__(
+        self,
+        system: StepSystem,
+        goals: Sequence[Predicate],
+        abstraction: Callable[[tuple[int, ...], frozenset[int]], Abstraction],
+        options: HeuristicOptions | None = None,
+    ) -> None:
+        began = time.perf_counter()
+        self.options = options or HeuristicOptions()
+        compiled = system.compiled
+        self.system = system
+        self.atoms = goal_atoms(goals)
+        self.impossible = any(a == FALSE for a in self.atoms)
+        self.atoms = [a for a in self.atoms if not isinstance(a, Const)]
+        self.groups: list[Group] = []
+        index = compiled.index
+        writers: dict[int, list[CompiledTransition]] = {}
+        for t in system.transitions:
+            for i in t.writes:
+                writers.setdefault(i, []).append(t)
+        self._writers = writers
+        # Tour atoms: one variable, read by nothing but its own achievers.
+        tour: list[tuple[Predicate, list[Achiever]]] = []
+        inside: list[Predicate] = []
+        for atom in self.atoms:
+            paths = atom.paths()
+            if self.options.tours and len(paths) == 1:
+                (path,) = paths
+                found = achievers(system, atom, path)
+                achieving = {t.number for t, _, _ in found}
+                readers = {t.number for t in system.transitions if index[path] in t.reads}
+                if readers <= achieving:
+                    tour.append((atom, found))
+                    continue
+            inside.append(atom)
+        excluded = {index[next(iter(a.paths()))] for a, _ in tour}
+        families: dict[tuple[int, ...], list[tuple[Predicate, list[Achiever]]]] = {}
+        for atom, found in tour:
+            seed = {index[p] for t, _, c in found for p in compiled.guard_of(t.source).paths() | c.paths()}
+            families.setdefault(tuple(sorted(seed - excluded)), []).append((atom, found))
+        # Two ways to cover what a family's cone leaves out (see `_patterns`); `prepare` keeps the better one.
+        merged = self._merge(inside, excluded)
+        self._candidates: list[list[Group]] = []
+        for whole in ((False, True) if self.options.patterns > 1 else (False,)):
+            plans: list[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate], bool]] = []
+            for seed, members in families.items():
+                plans += [(v, members, True) for v in self._patterns((), seed, excluded, whole)]
+            for required, atoms in merged:
+                plans += [(v, atoms, False) for v in self._patterns(required, (), excluded, whole)]
+            groups: list[Group] = []
+            for (variables, members, is_tour), costs in zip(plans, self._partition(plans), strict=True):
+                if not costs:
+                    continue
+                writing = frozenset(self._written_by(variables))
+                if is_tour:
+                    groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],
+                                            [f for _, f in members], index, costs, self.options.arborescence,
+                                            self.options.potential))
+                else:
+                    groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))
+            self._candidates.append(groups)
+        self.groups = self._candidates[0]
+        self._unsatisfied = generate(
+            " + ".join(f"(not {predicate_source(a, index)})" for a in self.atoms) + " + 0" if self.atoms else "0"
+        )
+        self.per_step = max(
+            (sum(1 for a in self.atoms if a.paths() & {compiled.paths[i] for i in t.writes})
+             for t in system.transitions),
+            default=0,
+        )
+        self.build_seconds = time.perf_counter() - began
+
+    # --- construction --------------------------------------------------------------------
+    def _partition(self, plans: Sequence[tuple[tuple[int, ...], object, bool]]) -> list[frozenset[int]]:
+        """Zero-one cost partitioning: each transition counts (costs 1) in exactly one pattern.
+
+        A transition goes to the pattern that holds most of the variables it writes (then most of those it
+        reads, then the earliest):
+        that pattern models its effect fully, while a pattern holding only part of it may never need it
+        (a reset that clears the torque flag together with the spindle). The achievers of a tour family
+        count in the family's first pattern.
+        """
+        chosen: dict[int, int] = {}
+        best: dict[int, tuple[int, int]] = {}
+        for n, (variables, _, _) in enumerate(plans):
+            members = set(variables)
+            for t in self.system.transitions:
+                overlap = (len(t.writes & members), len(t.reads & members))  # then: its guard modelled best
+                if overlap[0] and overlap > best.get(t.number, (0, 0)):
+                    best[t.number] = overlap
+                    chosen[t.number] = n
+        first_of_family: dict[int, int] = {}
+        for n, (_, members, is_tour) in enumerate(plans):
+            if is_tour:
+                first_of_family.setdefault(id(members), n)
+        for n, (_, members, is_tour) in enumerate(plans):
+            if is_tour and first_of_family[id(members)] == n:
+                for _, found in members:  # type: ignore[attr-defined]
+                    for t, _, _ in found:
+                        chosen.setdefault(t.number, n)  # unless it writes pattern variables too
+        costs: list[set[int]] = [set() for _ in plans]
+        for number, n in chosen.items():
+            costs[n].add(number)
+        return [frozenset(c) for c in costs]
+
+    def _written_by(self, variables: Iterable[int]) -> set[int]:
+        return {t.number for v in variables for t in self._writers.get(v, ())}
+
+    def _influence(self, required: Sequence[int], seed: Iterable[int], excluded: set[int]) -> list[int]:
+        """The variables that can influence the required and seed ones, nearest first (no cap).
+
+        Variables nothing writes are left out (constants: dropping them only loosens guards), as are
+        `excluded` ones (the tour atoms' own variables).
+        """
+        order = list(dict.fromkeys(required))
+        seen = set(order) | set(excluded)
+        for v in sorted(set(seed) - seen):
+            seen.add(v)
+            if v in self._writers:
+                order.append(v)
+        k = 0
+        while k < len(order):
+            for t in self._writers.get(order[k], ()):
+                for r in sorted(t.reads):
+                    if r not in seen:
+                        seen.add(r)
+                        if r in self._writers:
+                            order.append(r)
+            k += 1
+        return order
+
+    def _fill(self, first: Sequence[int], then: Sequence[int]) -> tuple[int, ...]:
+        """`first` (all of it), then variables of `then` in order while the product of domains fits the cap."""
+        domains = self.system.compiled.domains
+        chosen = list(dict.fromkeys(first))
+        product = 1
+        for v in chosen:
+            product *= len(domains[v].values)
+        for v in then:
+            if v in chosen:
+                continue
+            size = len(domains[v].values)
+            if product * size <= self.options.cap:
+                chosen.append(v)
+                product *= size
+        return tuple(sorted(chosen))
+
+    def _patterns(
+        self, required: Sequence[int], seed: Iterable[int], excluded: set[int], whole: bool = False
+    ) -> list[tuple[int, ...]]:
+        """The family's cone under the cap, then one pattern per resource whose cone variables it missed.
+
+        A resource pattern starts with the variables the cone missed (`whole`: all the resource's
+        variables, so that its transitions are modelled whole), then the seed, then the rest of the cone.
+        Neither choice is best everywhere: a tool's lift and a nutrunner's cycle want different ones.
+        """
+        order = self._influence(required, seed, excluded)
+        patterns = [self._fill(required, order)]
+        if self.options.patterns <= 1:
+            return patterns
+        covered = set(patterns[0])
+        paths = self.system.compiled.paths
+        seeds = [v for v in order if v in set(seed)]
+        # Resources by their nearest variable the cone left out (a resource read by the goal's own writers
+        # before one only reachable through several hops).
+        left_out = [v for v in order if v not in covered]
+        for resource in dict.fromkeys(paths[v].split(".", 1)[0] for v in left_out):
+            own = [v for v in order if v not in covered and paths[v].startswith(resource + ".")]
+            if not own:
+                continue
+            if whole:
+                own = [v for v in order if paths[v].startswith(resource + ".")]
+            pattern = self._fill(required, [*own, *seeds, *order])
+            if set(pattern) <= covered:
+                continue
+            covered |= set(pattern)
+            patterns.append(pattern)
+            if len(patterns) >= self.options.patterns:
+                break
+        return patterns
+
+    def _merge(self, atoms: list[Predicate], excluded: set[int]) -> list[tuple[tuple[int, ...], list[Predicate]]]:
+        """Inside atoms merged greedily while their cones fit under the cap: (their variables, atoms)."""
+        domains = self.system.compiled.domains
+        index = self.system.compiled.index
+
+        def states(variables: Iterable[int]) -> int:
+            product = 1
+            for v in variables:
+                product *= len(domains[v].values)
+            return product
+
+        merged: list[tuple[set[int], set[int], list[Predicate]]] = []  # (own variables, cone, atoms)
+        for atom in atoms:
+            own = sorted(index[p] for p in atom.paths())
+            cone = set(self._fill(own, self._influence(own, (), excluded)))
+            best = None
+            for group in merged:
+                union = group[1] | cone
+                if states(union) <= self.options.cap and (best is None or len(group[1] & cone) > len(best[1] & cone)):
+                    best = group
+            if best is None:
+                merged.append((set(own), cone, [atom]))
+            else:
+                best[0].update(own)
+                best[1].update(cone)
+                best[2].append(atom)
+        return [(tuple(sorted(own)), members) for own, _, members in merged]
+
+    # --- evaluation --------------------------------------------------------------------------
+    def prepare(self, start: State) -> None:
+        """Call before evaluating states reachable from `start`: the tables cover the reachable states only.
+
+        The first call also picks, of the candidate pattern collections, the one with the larger value at
+        `start` (both are admissible); the other is dropped.
+        """
+        if len(self._candidates) > 1:
+            best = -1
+            for groups in self._candidates:
+                for g in groups:
+                    g.prepare(start)
+                self.groups = groups
+                value = self(start)
+                if value > best:
+                    best, chosen = value, groups
+            self.groups = chosen
+            self._candidates = [chosen]
+        for g in self.groups:
+            g.prepare(start)
+
+    def __call__(self, s: State) -> int:
+        if self.impossible:
+            return INF
+        unsatisfied: int = self._unsatisfied(s)  # type: ignore[assignment]
+        if not unsatisfied:
+            return 0
+        if self.per_step == 0:
+            return INF
+        best = -(-unsatisfied // self.per_step)
+        total = 0
+        for g in self.groups:
+            total += g.value(s)
+        if total > best:
+            best = total
+        return best if best < INF else INF
+
+    def why_unreachable(self, s: State) -> str:
+        """Which part of the heuristic proves the goal unreachable from `s`."""
+        if self.impossible:
+            return "a goal is the constant false"
+        if self.per_step == 0:
+            return "no transition writes the goal variables"
+        for g in self.groups:
+            if g.value(s) >= INF:
+                return f"unreachable in the projection: {g}"
+        return "unreachable"
+
+    def describe(self) -> str:
+        return "; ".join(str(g) for g in self.groups) or "(no groups)"

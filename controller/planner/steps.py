@@ -1,0 +1,165 @@
+"""The engine's step semantics, compiled for search.
+
+In a state where an automatic ability transition is enabled, the only step is the
+first enabled one in model order (`CompiledModel.close` fires them one at a time);
+otherwise the steps are the enabled deliberate transitions and the enabled effect
+outcomes. The search works on *macro-steps*: one non-automatic step followed by the
+urgent automatic chain it triggers. Every micro state of the chain is checked (a
+forbidden one cuts the chain), so macro-steps describe exactly the micro-step graph.
+A goal counts only in a stable state (`stable_goal`): the engine fires the pending
+automatics before it looks at any goal, so a plan never relies on one waiting.
+
+Guards are inlined into generated functions: one call tells which moves are enabled,
+and one call per written-variable set finds the first enabled automatic among the
+only candidates that can have become enabled since the last stable state (those
+reading a written variable).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from common.model.compiled import MAX_AUTOMATIC_STEPS, CompiledModel, CompiledTransition, State, predicate_source
+
+Move = tuple[int, int]  # (CompiledTransition.number, outcome index)
+StateTest = Callable[[State], bool]
+CYCLE_CHECK_AFTER = 64  # chain length from which repeated states are looked for (automatic cycles)
+
+
+@dataclass(frozen=True)
+class Successor:
+    state: State
+    moves: tuple[Move, ...]  # the non-automatic step, then the automatics it triggered (micro steps)
+    goal: bool  # the chain stopped early because `state` satisfies the goal
+
+
+def _generate(name: str, body: list[str]) -> Callable[..., object]:
+    namespace: dict[str, object] = {}
+    exec(f"def {name}(s):\n" + "\n".join(f"    {line}" for line in body), namespace)
+    return namespace[name]  # type: ignore[return-value]
+
+
+class StepSystem:
+    """The ability transitions of a compiled model minus those touching a disabled resource."""
+
+    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
+        self.compiled = compiled
+        self.disabled = disabled
+        self.by_number = compiled.transitions
+
+        def allowed(t: CompiledTransition) -> bool:
+            return not (t.resources & disabled)
+
+        self.automatic: tuple[CompiledTransition, ...] = tuple(t for t in compiled.automatic if allowed(t))
+        ability = {t.number for t in (*compiled.deliberate, *compiled.effects)}
+        # Model order (deliberate and effect interleaved as declared) only decides ties between equal plans.
+        self.controlled: tuple[CompiledTransition, ...] = tuple(
+            t for t in compiled.transitions if t.number in ability and allowed(t)
+        )
+        self.moves: tuple[tuple[CompiledTransition, int], ...] = tuple(
+            (t, o) for t in self.controlled for o in range(len(t.outcomes))
+        )
+        self.transitions: tuple[CompiledTransition, ...] = (*self.controlled, *self.automatic)
+        self._enabled = self._enabled_function()
+        self._readers: dict[int, list[int]] = {}
+        for position, t in enumerate(self.automatic):
+            for i in t.reads:
+                self._readers.setdefault(i, []).append(position)
+        self._first_all = self._first_function(range(len(self.automatic)))
+        self._first_by_written: dict[frozenset[int], Callable[[State], int]] = {}
+
+    # --- generated guard tests ---------------------------------------------------------
+    def _source(self, t: CompiledTransition) -> str:
+        return predicate_source(self.compiled.guard_of(t.source), self.compiled.index)
+
+    def _enabled_function(self) -> Callable[[State], list[int]]:
+        body = ["r = []"]
+        position = 0
+        for t in self.controlled:
+            count = len(t.outcomes)
+            indices = tuple(range(position, position + count))
+            body.append(f"if {self._source(t)}: r.extend({indices!r})")
+            position += count
+        body.append("return r")
+        return _generate("enabled", body)  # type: ignore[return-value]
+
+    def _first_function(self, positions: Iterable[int]) -> Callable[[State], int]:
+        body = [f"if {self._source(self.automatic[p])}: return {p}" for p in sorted(positions)]
+        body.append("return -1")
+        return _generate("first", body)  # type: ignore[return-value]
+
+    def _first_after(self, written: frozenset[int]) -> Callable[[State], int]:
+        function = self._first_by_written.get(written)
+        if function is None:
+            candidates = {p for i in written for p in self._readers.get(i, ())}
+            function = self._first_function(candidates)
+            self._first_by_written[written] = function
+        return function
+
+    # --- semantics -----------------------------------------------------------------------
+    def first_automatic(self, state: State) -> CompiledTransition | None:
+        """The automatic transition that must fire in `state`, if any (full check, no stability assumed)."""
+        position = self._first_all(state)
+        return None if position < 0 else self.automatic[position]
+
+    def enabled_moves(self, state: State) -> list[tuple[CompiledTransition, int]]:
+        """Deliberate transitions and effect outcomes enabled in a state where no automatic one is."""
+        moves = self.moves
+        return [moves[m] for m in self._enabled(state)]
+
+    def chain(
+        self,
+        state: State,
+        moves: list[Move],
+        written: frozenset[int] | None,
+        goal: StateTest,
+        forbidden: StateTest | None,
+    ) -> Successor | None:
+        """Follow the urgent automatic chain from `state` (already reached by `moves`).
+
+        `written` is the set of variables written since the last stable state, or None
+        when `state` is not known to follow one (the start), which checks every automatic.
+        None is returned when the chain enters a forbidden state or never ends.
+        """
+        automatic = self.automatic
+        seen: set[State] | None = None
+        while True:
+            if forbidden is not None and forbidden(state):
+                return None
+            if goal(state):
+                return Successor(state, tuple(moves), True)
+            position = self._first_all(state) if written is None else self._first_after(written)(state)
+            if position < 0:
+                return Successor(state, tuple(moves), False)
+            t = automatic[position]
+            state = t.outcomes[0](state)
+            moves.append((t.number, 0))
+            if written is not None:
+                written = written | t.writes
+            if len(moves) > CYCLE_CHECK_AFTER:
+                if seen is None:
+                    seen = set()
+                if state in seen or len(moves) > MAX_AUTOMATIC_STEPS:
+                    return None  # an automatic cycle: the engine would never get past it
+                seen.add(state)
+
+    def successors(self, state: State, goal: StateTest, forbidden: StateTest | None) -> list[Successor]:
+        """Macro-steps from a stable state (no automatic transition enabled)."""
+        result = []
+        chain = self.chain
+        for t, o in self.enabled_moves(state):
+            found = chain(t.outcomes[o](state), [(t.number, o)], t.writes, goal, forbidden)
+            if found is not None:
+                result.append(found)
+        return result
+
+
+def stable_goal(compiled: CompiledModel, is_goal: StateTest, disabled: frozenset[str]) -> StateTest:
+    """`is_goal`, and no automatic transition (of an enabled resource) is due: the engine would fire it first."""
+    automatic = tuple(t for t in compiled.automatic if not (t.resources & disabled))
+
+    def test(state: State) -> bool:
+        return is_goal(state) and not any(t.guard(state) for t in automatic)
+
+    return test
