@@ -31,6 +31,21 @@ class PlanStepInfo(msgspec.Struct, frozen=True):
     done: bool
 
 
+class LoopStats(msgspec.Struct, frozen=True):
+    """How the controller's loop kept up since its previous status (`window_s` seconds)."""
+
+    window_s: float
+    ticks: int
+    tick_ms_median: float
+    tick_ms_p99: float
+    tick_ms_max: float
+    states: int  # hub states ingested
+    states_dropped: int  # replaced by a newer state of the same resource before they were ingested
+    state_age_ms_median: float  # from the hub's publication (its `time`) to ingestion
+    state_age_ms_p99: float
+    state_age_ms_max: float
+
+
 class StatusMessage(Message, kw_only=True):
     """`{station}/ctl/status`, at a few Hz and on every operation change."""
 
@@ -49,6 +64,7 @@ class StatusMessage(Message, kw_only=True):
     paused: bool = False
     finished: bool = False
     events: list[str] = msgspec.field(default_factory=list)  # newest last
+    loop: LoopStats | None = None  # None from a controller that does not measure itself
 
 
 class StateSnapshot(Message, kw_only=True):

@@ -20,7 +20,7 @@ from collections.abc import Iterable
 
 from common.bus import Bus, Keys
 from common.config import StationConfig
-from common.ctl import OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.ctl import LoopStats, OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.model.compiled import CompiledModel
@@ -35,6 +35,35 @@ log = logging.getLogger("statehub.controller")
 
 STATUS_PERIOD_S = 0.25
 STATE_SNAPSHOT_PERIOD_S = 1.0
+
+
+class LoopMeter:
+    """Tick durations and state ingestion between two statuses (`StatusMessage.loop`)."""
+
+    def __init__(self) -> None:
+        self.dropped = 0  # cumulative, set by the ingest loop from its subscription
+        self._dropped_before = 0
+        self._restart(time.monotonic())
+
+    def _restart(self, now: float) -> None:
+        self.since = now
+        self.ticks: list[float] = []  # seconds
+        self.ages: list[float] = []  # seconds from a state's publication to its ingestion
+
+    def take(self) -> LoopStats:
+        now = time.monotonic()
+        ticks, ages = sorted(self.ticks), sorted(self.ages)
+        stats = LoopStats(
+            window_s=now - self.since, ticks=len(ticks), tick_ms_median=_ms(ticks, 0.5), tick_ms_p99=_ms(ticks, 0.99),
+            tick_ms_max=_ms(ticks, 1.0), states=len(ages), states_dropped=self.dropped - self._dropped_before,
+            state_age_ms_median=_ms(ages, 0.5), state_age_ms_p99=_ms(ages, 0.99), state_age_ms_max=_ms(ages, 1.0))
+        self._dropped_before = self.dropped
+        self._restart(now)
+        return stats
+
+
+def _ms(ordered: list[float], q: float) -> float:
+    return 1000.0 * ordered[min(len(ordered) - 1, int(len(ordered) * q))] if ordered else 0.0
 
 
 class ControllerService:
@@ -71,6 +100,7 @@ class ControllerService:
         self._last_persisted: dict[int, Value] = {}
         self._mismatch_logged: set[str] = set()
         self._planning: asyncio.Task[None] | None = None
+        self.meter = LoopMeter()
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:
@@ -130,7 +160,10 @@ class ControllerService:
             self.store.close()
 
     async def _ingest_states(self) -> None:
-        async for sample in self.bus.subscribe(self.keys.all_state):
+        subscription = self.bus.subscribe(self.keys.all_state)
+        meter = self.meter
+        async for sample in subscription:
+            meter.dropped = subscription.dropped
             resource = self.keys.resource_of(sample.key)
             codec = self.codecs.get(resource or "")
             if codec is None:
@@ -142,6 +175,7 @@ class ControllerService:
                     log.warning("dropped state on %s: %s", sample.key, exc)
                     self._mismatch_logged.add(resource)  # type: ignore[arg-type]
                 continue
+            meter.ages.append(time.time() - state.time)
             mirror = state.mirror
             mirrored_seq = mirror.seq if mirror is not None and mirror.controller == self.controller_id else None
             if mirror is not None and resource not in self.mirrors:
@@ -163,8 +197,11 @@ class ControllerService:
 
     async def _tick_loop(self, stop: asyncio.Event) -> None:
         period = 1.0 / self.config.controller.tick_rate_hz
+        meter = self.meter
         while not stop.is_set():
+            began = time.perf_counter()
             self._tick()
+            meter.ticks.append(time.perf_counter() - began)
             self._dirty.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._dirty.wait(), period)
@@ -283,4 +320,5 @@ class ControllerService:
             uptime=now - self.started, operations=operations, health=health, plan=plan, plan_goals=goals,
             plans=events.plans, replans=events.replans, no_plans=events.no_plans,
             abilities=events.abilities_started, finished=core.all_finished(), events=events.log[-20:],
+            loop=self.meter.take(),
         )

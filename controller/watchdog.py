@@ -2,15 +2,18 @@
 
 A resource is unhealthy when its hub's liveliness token is gone, its state is older
 than `stale_after`, its hub reports a problem (device lost, safe state, rejected
-command), or its mirror lags the newest command for longer than `mirror_bound`.
+command), or a command it was sent is not mirrored within `mirror_bound` (measured from when
+the oldest command the mirror does not cover yet was first sent, so that a hub that applies
+nothing is reported even while the commands keep changing).
 Pure logic with an injectable clock; the controller process feeds it events.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 HEALTHY_STATUSES = frozenset({"ok", "no_command"})
 
@@ -23,10 +26,11 @@ class ResourceWatch:
     last_state: float | None = None
     hub_status: str = "unknown"
     hub_detail: str = ""
-    commanded_seq: int = 0
+    commanded_seq: int = -1  # none yet: the first command sent (seq 0) is watched too
     commanded_at: float | None = None
     mirrored_seq: int = -1
     ever_seen: bool = False
+    unmirrored: deque[tuple[int, float]] = field(default_factory=deque)  # (seq, first sent) not yet mirrored
 
 
 @dataclass(frozen=True)
@@ -61,16 +65,24 @@ class Watchdog:
         w.hub_status, w.hub_detail = status, detail
         if mirrored_seq is not None:
             w.mirrored_seq = mirrored_seq
+            while w.unmirrored and w.unmirrored[0][0] <= mirrored_seq:
+                w.unmirrored.popleft()
 
     def command_sent(self, resource: str, seq: int) -> None:
         w = self.watches[resource]
         if seq != w.commanded_seq:
             w.commanded_seq = seq
             w.commanded_at = self.clock()
+            if seq > w.mirrored_seq:
+                w.unmirrored.append((seq, w.commanded_at))
 
     def reset_mirror(self, resource: str) -> None:
         """A new controller run: earlier mirrors say nothing about our commands."""
-        self.watches[resource].mirrored_seq = -1
+        w = self.watches[resource]
+        w.mirrored_seq = -1
+        w.unmirrored.clear()
+        if w.commanded_at is not None and w.commanded_seq >= 0:
+            w.unmirrored.append((w.commanded_seq, self.clock()))
 
     def health(self, resource: str) -> Health:
         w = self.watches[resource]
@@ -86,9 +98,10 @@ class Watchdog:
             reason = f"state is stale: last one {age:.2f} s ago (bound {self.stale_after} s)"
         elif w.hub_status not in HEALTHY_STATUSES:
             reason = f"hub reports {w.hub_status}" + (f": {w.hub_detail}" if w.hub_detail else "")
-        elif lag and w.commanded_at is not None and now - w.commanded_at > self.mirror_bound:
-            reason = (f"mirror lags: command seq {w.commanded_seq} sent {now - w.commanded_at:.2f} s ago, "
-                      f"hub mirrors seq {w.mirrored_seq}")
+        elif lag and w.unmirrored and now - w.unmirrored[0][1] > self.mirror_bound:
+            seq, sent = w.unmirrored[0]
+            mirrored = f"seq {w.mirrored_seq}" if w.mirrored_seq >= 0 else "none of this controller's commands"
+            reason = f"mirror lags: command seq {seq} sent {now - sent:.2f} s ago, hub mirrors {mirrored}"
         return Health(resource, w.hub, not reason, reason, age, lag)
 
     def unhealthy(self) -> dict[str, str]:
