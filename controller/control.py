@@ -40,6 +40,24 @@ class ControlEvents:
     log: list[str] = field(default_factory=list)
 
 
+def solve_goals(planner: Planner, request: PlanRequest, joint_time_limit: float,
+                single_time_limit: float) -> tuple[Plan | NoPlan | None, str]:
+    """A shortest plan for all goals together; if that is not found within the budget (but not
+    proven impossible either), a shortest plan for the first goal that has one, so the station
+    makes progress — as the original planner gave up minimality for hard cases. The note says so."""
+    if not request.goals:
+        return None, ""
+    result = planner.plan(request.start, request.goals, request.disabled, time_limit=joint_time_limit)
+    if not isinstance(result, NoPlan) or result.unreachable or len(request.goals) < 2:
+        return result, ""
+    for name, goal in request.goals.items():
+        single = planner.plan(request.start, {name: goal}, request.disabled, time_limit=single_time_limit)
+        if isinstance(single, Plan):
+            return single, (f"planned {name} alone: {len(request.goals)} goals together were not solved "
+                            f"within {joint_time_limit:.0f} s ({result.reason})")
+    return result, ""
+
+
 class ControlCore:
     def __init__(self, compiled: CompiledModel, planner: Planner, clock: Callable[[], float] = time.monotonic,
                  *, joint_time_limit: float = 3.0, single_time_limit: float = 10.0) -> None:
@@ -156,22 +174,9 @@ class ControlCore:
         return PlanRequest(self.generation, self.state, goals, self.disabled)
 
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
-        """A shortest plan for all goals together; if that is not found within the budget (but not
-        proven impossible either), a shortest plan for the first goal that has one, so the station
-        makes progress — as the original planner gave up minimality for hard cases. Logged."""
-        if not request.goals:
-            return None
-        result = self.planner.plan(request.start, request.goals, request.disabled,
-                                   time_limit=self.joint_time_limit)
-        if not isinstance(result, NoPlan) or result.unreachable or len(request.goals) < 2:
-            return result
-        for name, goal in request.goals.items():
-            single = self.planner.plan(request.start, {name: goal}, request.disabled,
-                                       time_limit=self.single_time_limit)
-            if isinstance(single, Plan):
-                self.events.log.append(f"planned {name} alone: {len(request.goals)} goals together were not "
-                                       f"solved within {self.joint_time_limit:.0f} s ({result.reason})")
-                return single
+        result, note = solve_goals(self.planner, request, self.joint_time_limit, self.single_time_limit)
+        if note:
+            self.events.log.append(note)
         return result
 
     def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:

@@ -27,6 +27,7 @@ from common.model.compiled import CompiledModel
 
 from .control import ControlCore
 from .planner import NoPlan, Planner
+from .planworker import PlannerProcess
 from .state import StateStore
 from .synthesis import synthesize
 from .watchdog import Watchdog
@@ -68,7 +69,8 @@ def _ms(ordered: list[float], q: float) -> float:
 
 class ControllerService:
     def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
-                 mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None) -> None:
+                 mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None,
+                 planner_process: bool = True) -> None:
         self.config = config
         self.model = model
         self.bus = bus
@@ -100,6 +102,8 @@ class ControllerService:
         self._last_persisted: dict[int, Value] = {}
         self._mismatch_logged: set[str] = set()
         self._planning: asyncio.Task[None] | None = None
+        # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
+        self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
 
     # --- start-up -------------------------------------------------------------------------
@@ -157,6 +161,8 @@ class ControllerService:
                     await task
             if self._planning is not None:
                 self._planning.cancel()
+            if self.planner_process is not None:
+                self.planner_process.close()
             self.store.close()
 
     async def _ingest_states(self) -> None:
@@ -266,7 +272,12 @@ class ControllerService:
 
         async def solve() -> None:
             try:
-                result = await asyncio.to_thread(self.core.solve, request)
+                if self.planner_process is not None:
+                    result, note = await self.planner_process.solve(request)
+                    if note:
+                        self.core.events.log.append(note)
+                else:
+                    result = await asyncio.to_thread(self.core.solve, request)
             except Exception as exc:  # a planner bug must not stop the station: report and retry
                 log.exception("planner failed")
                 result = NoPlan(f"planner failed: {type(exc).__name__}: {exc}", tuple(request.goals))

@@ -1,33 +1,5 @@
-"""Loading a station model by its `module:function` reference, with errors that say which."""
+"""Loading a station model by its `module:function` reference (shared with the controller's planner worker)."""
 
-from __future__ import annotations
+from common.stations import DEFAULT_MODEL, ModelLoadError, load_model
 
-import importlib
-
-from common.model import Model, ModelError
-
-DEFAULT_MODEL = "common.stations.engine_assembly:build_model"
-
-
-class ModelLoadError(Exception):
-    pass
-
-
-def load_model(reference: str = DEFAULT_MODEL) -> Model:
-    module_name, _, function_name = reference.partition(":")
-    if not module_name or not function_name:
-        raise ModelLoadError(f"model reference {reference!r} must look like 'package.module:function'")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ModelLoadError(f"cannot import station module {module_name!r} (from {reference!r}): {exc}") from exc
-    factory = getattr(module, function_name, None)
-    if not callable(factory):
-        raise ModelLoadError(f"station module {module_name!r} has no function {function_name!r}")
-    try:
-        model = factory()
-    except ModelError:
-        raise
-    if not isinstance(model, Model):
-        raise ModelLoadError(f"{reference} returned {type(model).__name__}, not a Model")
-    return model
+__all__ = ["DEFAULT_MODEL", "ModelLoadError", "load_model"]
