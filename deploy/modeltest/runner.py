@@ -174,6 +174,11 @@ def run_model_test(target: Target, resource: str, options: Options | None = None
                 report.notes.append("the minimal sequence did not fail again when replayed: timing-dependent")
         except SessionAborted as exc:
             report.aborted = str(exc)
+        if link.foreign and report.aborted is None:
+            # Another controller commanded the resource during the run: whatever failed is not a
+            # finding about the hub, however the disturbance first showed.
+            report.aborted = session._foreign_message(next(iter(link.foreign)))
+            report.failure, report.passed = None, False
         report.examples, report.runs, report.skipped = session.passed, session.calls, session.skipped
         report.resets = session.resets
         report.first_failure_run = session.first_failure_call
