@@ -35,9 +35,9 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ def parse_frame(line: bytes) -> list[tuple[float, float]]:
     return people
 
 
-class CameraTracker(Driver):
+class CameraTracker(LinkedDriver):
     def __init__(
         self,
         resource: str = "cam",
@@ -111,20 +111,6 @@ class CameraTracker(Driver):
         self._link = ReconnectLogic(
             f"{resource}@{host}:{port}", self._open, self._release, backoff=backoff, connect_timeout=2 * stale_after + 1
         )
-
-    @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    async def connect(self) -> None:
-        await self._link.start()
-
-    async def close(self) -> None:
-        await self._link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         people = self._fresh_people()

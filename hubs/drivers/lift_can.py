@@ -53,8 +53,8 @@ from typing import Any
 import can
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
-from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.safestate import SafeStateWrite
 
 log = logging.getLogger(__name__)
@@ -114,7 +114,7 @@ class _Listener(can.Listener):
         self._link.connection_lost_threadsafe(f"CAN bus error: {describe(exc)}")
 
 
-class LiftCan(Driver):
+class LiftCan(LinkedDriver):
     def __init__(
         self,
         resource: str = "lift",
@@ -153,20 +153,6 @@ class LiftCan(Driver):
         )
 
     # -- Driver API -------------------------------------------------------------------
-
-    @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    async def connect(self) -> None:
-        await self._link.start()
-
-    async def close(self) -> None:
-        await self._link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         status = self._fresh_status()

@@ -49,9 +49,9 @@ from typing import Any
 import httpx
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ def auth_header(username: str, password: str) -> str:
     return "Basic " + base64.b64encode(token.encode()).decode()
 
 
-class MirRest(Driver):
+class MirRest(LinkedDriver):
     def __init__(
         self,
         resource: str = "mir",
@@ -107,20 +107,6 @@ class MirRest(Driver):
         )
 
     # -- Driver API -------------------------------------------------------------------
-
-    @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    async def connect(self) -> None:
-        await self._link.start()
-
-    async def close(self) -> None:
-        await self._link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         status = self._fresh_status()

@@ -62,8 +62,8 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
-from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +129,7 @@ def default_bus_factory(bus_number: int) -> BusFactory:
     return factory
 
 
-class NutrunnerMcp23017(Driver):
+class NutrunnerMcp23017(LinkedDriver):
     def __init__(
         self,
         resource: str = "nr",
@@ -164,19 +164,8 @@ class NutrunnerMcp23017(Driver):
 
     # -- Driver API -------------------------------------------------------------------
 
-    @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    async def connect(self) -> None:
-        await self._link.start()
-
     async def close(self) -> None:
-        await self._link.stop()
+        await super().close()
         if self._executor is not None:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None

@@ -33,6 +33,8 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from .base import Driver
+
 log = logging.getLogger(__name__)
 
 ConnectFn = Callable[[], Awaitable[None]]
@@ -237,3 +239,24 @@ class ReconnectLogic:
             self._on_state(connected, reason)
         except Exception:
             log.exception("%s: on_state callback failed", self.name)
+
+
+class LinkedDriver(Driver):
+    """A driver whose device connection is one `ReconnectLogic`: connecting, closing and
+    `connected` are the link's. Subclasses set `self._link` in their constructor."""
+
+    _link: ReconnectLogic
+
+    @property
+    def connected(self) -> bool:
+        return self._link.connected
+
+    @property
+    def link(self) -> ReconnectLogic:
+        return self._link
+
+    async def connect(self) -> None:
+        await self._link.start()
+
+    async def close(self) -> None:
+        await self._link.stop()

@@ -41,9 +41,9 @@ from typing import Any
 import serial
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ def parse_body(body: bytes) -> str | None:
     return text[:10].upper() if value == check else None
 
 
-class RfidSerial(Driver):
+class RfidSerial(LinkedDriver):
     def __init__(
         self,
         resource: str = "rfid",
@@ -107,24 +107,10 @@ class RfidSerial(Driver):
     # -- Driver API -------------------------------------------------------------------
 
     @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    @property
     def operator(self) -> str | None:
         """The logged-in operator's name (from the allow-list), None when nobody is."""
         self._expire()
         return self.operators.get(self._operator) if self._operator else None
-
-    async def connect(self) -> None:
-        await self._link.start()
-
-    async def close(self) -> None:
-        await self._link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         if not self.connected:

@@ -62,9 +62,9 @@ from typing import Any
 
 from common.model import Value
 from hubs.drivers import ur_rtde_worker as worker
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff, ReconnectLogic
+from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic
 from hubs.drivers.safestate import SafeStateWrite
 
 log = logging.getLogger(__name__)
@@ -108,7 +108,7 @@ def rotation_between(a: Sequence[float], b: Sequence[float]) -> float:
     return math.acos(max(-1.0, min(1.0, (trace - 1) / 2)))
 
 
-class UrRtde(Driver):
+class UrRtde(LinkedDriver):
     def __init__(
         self,
         resource: str = "ur",
@@ -169,22 +169,8 @@ class UrRtde(Driver):
     # -- Driver API -------------------------------------------------------------------
 
     @property
-    def connected(self) -> bool:
-        return self._link.connected
-
-    @property
-    def link(self) -> ReconnectLogic:
-        return self._link
-
-    @property
     def worker_pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else None
-
-    async def connect(self) -> None:
-        await self._link.start()
-
-    async def close(self) -> None:
-        await self._link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         state = self._fresh_state()
