@@ -85,7 +85,7 @@ def parse_frame(line: bytes) -> list[tuple[float, float]]:
     return people
 
 
-class CameraTracker(LinkedDriver):
+class CameraTracker(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "cam",

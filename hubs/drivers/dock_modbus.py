@@ -22,15 +22,15 @@ from collections.abc import Mapping
 from typing import Any
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.modbus_io import ModbusLink
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff
+from hubs.drivers.reconnect import Backoff, LinkedDriver
 
 SLOTS = ("nutrunner_home_m", "lift_tool_home_m", "filter_tool_home_m")
 
 
-class DockModbus(Driver):
+class DockModbus(LinkedDriver[ModbusLink]):
     def __init__(
         self,
         resource: str = "dock",
@@ -44,19 +44,9 @@ class DockModbus(Driver):
     ) -> None:
         self.resource = resource
         self.di_base = di_base
-        self.link = ModbusLink(
+        self._link = ModbusLink(
             resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._probe
         )
-
-    @property
-    def connected(self) -> bool:
-        return self.link.connected
-
-    async def connect(self) -> None:
-        await self.link.start()
-
-    async def close(self) -> None:
-        await self.link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         inputs = await self.link.read_discrete_inputs(self.di_base, len(SLOTS))

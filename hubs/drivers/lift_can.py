@@ -114,7 +114,7 @@ class _Listener(can.Listener):
         self._link.connection_lost_threadsafe(f"CAN bus error: {describe(exc)}")
 
 
-class LiftCan(LinkedDriver):
+class LiftCan(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "lift",

@@ -65,7 +65,7 @@ def auth_header(username: str, password: str) -> str:
     return "Basic " + base64.b64encode(token.encode()).decode()
 
 
-class MirRest(LinkedDriver):
+class MirRest(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "mir",

@@ -129,7 +129,7 @@ def default_bus_factory(bus_number: int) -> BusFactory:
     return factory
 
 
-class NutrunnerMcp23017(LinkedDriver):
+class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "nr",

@@ -31,7 +31,7 @@ import random
 import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 from .base import Driver
 
@@ -241,18 +241,32 @@ class ReconnectLogic:
             log.exception("%s: on_state callback failed", self.name)
 
 
-class LinkedDriver(Driver):
-    """A driver whose device connection is one `ReconnectLogic`: connecting, closing and
-    `connected` are the link's. Subclasses set `self._link` in their constructor."""
+class Link(Protocol):
+    """What a driver's device connection offers: `ReconnectLogic`, or a protocol link built on it."""
 
-    _link: ReconnectLogic
+    @property
+    def connected(self) -> bool: ...
+
+    async def start(self) -> None: ...
+
+    async def stop(self) -> None: ...
+
+
+L = TypeVar("L", bound=Link)
+
+
+class LinkedDriver(Driver, Generic[L]):
+    """A driver whose device connection is one link: connecting, closing and `connected` are
+    the link's. Subclasses set `self._link` in their constructor."""
+
+    _link: L
 
     @property
     def connected(self) -> bool:
         return self._link.connected
 
     @property
-    def link(self) -> ReconnectLogic:
+    def link(self) -> L:
         return self._link
 
     async def connect(self) -> None:

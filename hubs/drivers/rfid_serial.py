@@ -68,7 +68,7 @@ def parse_body(body: bytes) -> str | None:
     return text[:10].upper() if value == check else None
 
 
-class RfidSerial(LinkedDriver):
+class RfidSerial(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "rfid",

@@ -35,10 +35,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, Driver, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.modbus_io import ModbusLink
 from hubs.drivers.params import require
-from hubs.drivers.reconnect import Backoff
+from hubs.drivers.reconnect import Backoff, LinkedDriver
 from hubs.drivers.safestate import SafeStateWrite
 
 TOOL_CODES = {0: "none", 1: "nutrunner", 2: "lift_tool", 3: "filter_tool"}
@@ -46,7 +46,7 @@ LOCKED, UNLOCKED, PRESSURE, PRESENT, CODE0, CODE1 = range(6)
 N_INPUTS = 6
 
 
-class RspModbus(Driver):
+class RspModbus(LinkedDriver[ModbusLink]):
     def __init__(
         self,
         resource: str = "rsp",
@@ -64,19 +64,9 @@ class RspModbus(Driver):
         self.di_base = di_base
         self._desired_lock: bool | None = None
         self._safe_write = SafeStateWrite()
-        self.link = ModbusLink(
+        self._link = ModbusLink(
             resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._on_connect
         )
-
-    @property
-    def connected(self) -> bool:
-        return self.link.connected
-
-    async def connect(self) -> None:
-        await self.link.start()
-
-    async def close(self) -> None:
-        await self.link.stop()
 
     async def read(self) -> Mapping[str, Value]:
         inputs = await self.link.read_discrete_inputs(self.di_base, N_INPUTS)

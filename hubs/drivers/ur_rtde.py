@@ -108,7 +108,7 @@ def rotation_between(a: Sequence[float], b: Sequence[float]) -> float:
     return math.acos(max(-1.0, min(1.0, (trace - 1) / 2)))
 
 
-class UrRtde(LinkedDriver):
+class UrRtde(LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "ur",
