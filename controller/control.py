@@ -79,6 +79,7 @@ class ControlCore:
         self.need_plan_reason: str | None = "start"
         self.errors: dict[str, tuple[str, float]] = {}  # operation -> (reason, since)
         self.events = ControlEvents()
+        self._deliberate_names = frozenset(t.name for t in compiled.deliberate)
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
         self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
 
@@ -135,9 +136,8 @@ class ControlCore:
         self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
         if result.replan is not None:
             self._want_plan(result.replan)
-        if result.started or result.finished:
-            for name in result.finished:
-                self.errors.pop(name, None)
+        for name in result.finished:
+            self.errors.pop(name, None)
         goals = frozenset(self.goals())
         if goals != self.planned_goals and not (self.planning and goals == self.requested_goals):
             self._want_plan("goals changed")
@@ -145,14 +145,6 @@ class ControlCore:
             # Completed plan whose goals do not hold: the world moved on; plan again.
             self._want_plan("plan complete but goals not reached")
         return result
-
-    @property
-    def _deliberate_names(self) -> frozenset[str]:
-        names = getattr(self, "_deliberate_cache", None)
-        if names is None:
-            names = frozenset(t.name for t in self.compiled.deliberate)
-            self._deliberate_cache = names
-        return names
 
     def _want_plan(self, reason: str) -> None:
         if self.need_plan_reason is None:
