@@ -32,6 +32,17 @@ class PlanRequest:
 
 
 @dataclass
+class Force:
+    """A variable the operator holds at `value`. `own` is what it holds without the force: the hub's
+    newest measurement, or (estimated and command variables, which nothing writes while forced) its
+    value before the force; `until` releases the force by itself once it holds (a confirmation)."""
+
+    value: Value
+    own: Value
+    until: Callable[[State], bool] | None = None
+
+
+@dataclass
 class ControlEvents:
     replans: int = 0
     plans: int = 0
@@ -79,6 +90,9 @@ class ControlCore:
         self.need_plan_reason: str | None = "start"
         self.errors: dict[str, tuple[str, float]] = {}  # operation -> (reason, since)
         self.events = ControlEvents()
+        self.paused = False  # the operator holds every deliberate transition: plan steps and operation starts
+        self.forced: dict[int, Force] = {}  # by state index
+        self._blocked: frozenset[str] = frozenset()  # ability transitions writing a forced variable
         self._deliberate_names = frozenset(t.name for t in compiled.deliberate)
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
         self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
@@ -93,6 +107,8 @@ class ControlCore:
 
     def ingest(self, values: Mapping[str, Value]) -> bool:
         """Take measured values; True if anything changed."""
+        if self.forced:
+            values = self._behind_forces(values)
         changed = {p: v for p, v in values.items() if self.state[self.measured_indices[p]] != v}
         if changed:
             self.state = self.compiled.with_values(self.state, changed)
@@ -130,9 +146,13 @@ class ControlCore:
 
     # --- the loop -----------------------------------------------------------------------
     def tick(self) -> TickResult:
-        result = self.engine.tick(self.state, requested=self.requested, progress=self.progress,
-                                  disabled=self.disabled)
+        paused = self.paused
+        result = self.engine.tick(self.state, requested=() if paused else self.requested,
+                                  progress=None if paused else self.progress, disabled=self.disabled,
+                                  blocked=self._blocked)
         self.state = result.state
+        if self.forced:
+            self._hold_forces()
         self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
         if result.replan is not None:
             self._want_plan(result.replan)
@@ -140,11 +160,20 @@ class ControlCore:
             self.errors.pop(name, None)
         goals = frozenset(self.goals())
         if goals != self.planned_goals and not (self.planning and goals == self.requested_goals):
-            self._want_plan("goals changed")
+            if self._only_finished_left(goals):
+                # The rest of a shortest plan that keeps what is done is still shortest for what is left.
+                self.planned_goals = goals
+            else:
+                self._want_plan("goals changed")
         if self.progress is not None and self.progress.complete and goals == self.planned_goals and goals:
             # Completed plan whose goals do not hold: the world moved on; plan again.
             self._want_plan("plan complete but goals not reached")
         return result
+
+    def _only_finished_left(self, goals: frozenset[str]) -> bool:
+        """The plan under way planned for these goals and more, and the others are finished."""
+        return (self.progress is not None and not self.planning and goals < self.planned_goals
+                and all(self.op_state(n) == "finished" for n in self.planned_goals - goals))
 
     def _want_plan(self, reason: str) -> None:
         if self.need_plan_reason is None:
@@ -194,3 +223,80 @@ class ControlCore:
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self.progress = PlanProgress(self.compiled, result)
+
+    # --- the operator's interventions (controller/requests.py checks them first) ------------
+    def withdraw(self, name: str, replan: str | None = None) -> None:
+        """Operation `name` back to `initial` and no longer requested; `replan` (the reason) drops the
+        current plan, which was made for its goal too."""
+        if name in self.requested:
+            self.requested.remove(name)
+        self.errors.pop(name, None)
+        self.state = self.compiled.with_values(self.state, {self.model.operation_by_name[name].state_path: "initial"})
+        if replan is not None:
+            self._want_plan(replan)
+
+    def pause(self) -> None:
+        self.paused = True
+
+    def resume(self) -> None:
+        # Devices went on while paused (automatic transitions and effects): the held plan's
+        # trace may have been left in ways the engine cannot see, so plan afresh.
+        self.paused = False
+        self._want_plan("resumed")
+
+    def force(self, path: str, value: Value, until: Callable[[State], bool] | None = None) -> None:
+        i = self.compiled.index[path]
+        held = self.forced.get(i)
+        self.forced[i] = Force(value, held.own if held is not None else self.state[i], until)
+        self.state = self.compiled.with_values(self.state, {path: value})
+        self._forces_changed()
+
+    def unforce(self, path: str) -> bool:
+        """Release a force; the variable takes its own value again. False if it was not forced."""
+        held = self.forced.pop(self.compiled.index[path], None)
+        if held is None:
+            return False
+        self.state = self.compiled.with_values(self.state, {path: held.own})
+        self._forces_changed()
+        return True
+
+    def own_state(self) -> State:
+        """The state without the operator's forces: what is persisted, since a restart releases them."""
+        if not self.forced:
+            return self.state
+        state = list(self.state)
+        for i, held in self.forced.items():
+            state[i] = held.own
+        return tuple(state)
+
+    def forced_paths(self) -> list[str]:
+        return sorted(self.compiled.paths[i] for i in self.forced)
+
+    def _forces_changed(self) -> None:
+        indices = set(self.forced)
+        self._blocked = frozenset(t.name for t in (*self.compiled.automatic, *self.compiled.deliberate)
+                                  if t.writes & indices)
+
+    def _behind_forces(self, values: Mapping[str, Value]) -> dict[str, Value]:
+        """The measured values that no force hides; a hidden one is kept as the variable's own value."""
+        index = self.compiled.index
+        free = {}
+        for path, value in values.items():
+            held = self.forced.get(index[path])
+            if held is None:
+                free[path] = value
+            else:
+                held.own = value
+        return free
+
+    def _hold_forces(self) -> None:
+        # Ability transitions that write a forced variable are blocked, but an operation's start and
+        # finish actions are not: the force wins over them too.
+        state = list(self.state)
+        for i, held in self.forced.items():
+            state[i] = held.value
+        self.state = tuple(state)
+        released = [self.compiled.paths[i] for i, held in self.forced.items()
+                    if held.until is not None and held.until(self.state)]
+        for path in released:
+            self.unforce(path)

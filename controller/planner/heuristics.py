@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
-from common.model import FALSE, TRUE, And, Const, Predicate, Ref
+from common.model import FALSE, TRUE, And, Const, In, Predicate, Ref
 from common.model.compiled import CompiledTransition, State, predicate_source
 
 from .abstraction import INF, Abstraction, rename
@@ -59,9 +59,19 @@ def goal_atoms(goals: Iterable[Predicate]) -> list[Predicate]:
 
 
 def achievers(system: StepSystem, atom: Predicate, path: str) -> list[Achiever]:
-    """Steps that can make a one-variable atom true, each with the condition (before it) under which they do."""
+    """Steps that can make a one-variable atom true, each with the condition (before it) under which they do.
+
+    A step that can fire only where the atom already holds (tightening a mounted filter keeps it
+    `!= absent`) never makes it true and is left out.
+    """
+    compiled = system.compiled
+    values = compiled.domains[compiled.index[path]].values
     found: list[Achiever] = []
     for t in system.transitions:
+        guard = compiled.guard_of(t.source)
+        own = [item for item in (guard.items if isinstance(guard, And) else (guard,)) if item.paths() == {path}]
+        if own and all(atom.eval({path: u}) for u in values if all(item.eval({path: u}) for item in own)):
+            continue
         for outcome, actions in enumerate(t.source.outcomes):
             for action in actions:
                 if action.path != path:
@@ -113,6 +123,7 @@ class HeuristicOptions:
     arborescence: bool = True  # the class arborescence on top of the cheapest incoming edges
     patterns: int = 4  # per family of atoms: its cone, then resource patterns for what the cone left out
     potential: int = 1  # tour bounds: steps of work ahead a firing state may carry (0: no potentials)
+    landmarks: bool = True  # tour atoms whose achievers need their own variable set first (a bolt placed)
 
 
 class GoalHeuristic:
@@ -166,27 +177,28 @@ class GoalHeuristic:
         for atom, found in tour:
             seed = {index[p] for t, _, c in found for p in compiled.guard_of(t.source).paths() | c.paths()}
             families.setdefault(tuple(sorted(seed - excluded)), []).append((atom, found))
-        # Two ways to cover what a family's cone leaves out (see `_patterns`); `prepare` keeps the better one.
-        merged = self._merge(inside, excluded)
+        # Two ways to cover what a family's cone leaves out (see `_patterns`), each with and without the
+        # enabling landmarks; `prepare` keeps the collection with the largest value at the start.
+        landmarks = self._landmarks(tour) if self.options.landmarks else []
         self._candidates: list[list[Group]] = []
-        for whole in ((False, True) if self.options.patterns > 1 else (False,)):
-            plans: list[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate], bool]] = []
-            for seed, members in families.items():
-                plans += [(v, members, True) for v in self._patterns((), seed, excluded, whole)]
-            for required, atoms in merged:
-                plans += [(v, atoms, False) for v in self._patterns(required, (), excluded, whole)]
-            groups: list[Group] = []
-            for (variables, members, is_tour), costs in zip(plans, self._partition(plans), strict=True):
-                if not costs:
-                    continue
-                writing = frozenset(self._written_by(variables))
-                if is_tour:
-                    groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],
-                                            [f for _, f in members], index, costs, self.options.arborescence,
-                                            self.options.potential))
-                else:
-                    groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))
-            self._candidates.append(groups)
+        wholes = (False, True) if self.options.patterns > 1 else (False,)
+        for enabling in (True, False) if landmarks else (False,):
+            merged = self._merge([*inside, *landmarks] if enabling else inside, excluded)
+            for whole in wholes:
+                plans: list[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate],
+                                  bool]] = []
+                depths: list[dict[int, int]] = []
+                for seed, members in families.items():
+                    depth = self._depths((), seed, excluded)
+                    for v in self._patterns((), seed, excluded, whole):
+                        plans.append((v, members, True))
+                        depths.append(depth)
+                for required, atoms in merged:
+                    depth = self._depths(required, (), excluded)
+                    for v in self._patterns(required, (), excluded, whole):
+                        plans.append((v, atoms, False))
+                        depths.append(depth)
+                self._candidates.append(self._groups(plans, depths, abstraction))
         self.groups = self._candidates[0]
         self._unsatisfied = generate(
             " + ".join(f"(not {predicate_source(a, index)})" for a in self.atoms) + " + 0" if self.atoms else "0"
@@ -199,23 +211,54 @@ class GoalHeuristic:
         self.build_seconds = time.perf_counter() - began
 
     # --- construction --------------------------------------------------------------------
-    def _partition(self, plans: Sequence[tuple[tuple[int, ...], object, bool]]) -> list[frozenset[int]]:
+    def _groups(
+        self,
+        plans: Sequence[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate], bool]],
+        depths: Sequence[dict[int, int]],
+        abstraction: Callable[[tuple[int, ...], frozenset[int]], Abstraction],
+    ) -> list[Group]:
+        groups: list[Group] = []
+        index = self.system.compiled.index
+        for (variables, members, is_tour), costs in zip(plans, self._partition(plans, depths), strict=True):
+            if not costs:
+                continue
+            writing = frozenset(self._written_by(variables))
+            if is_tour:
+                groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],  # type: ignore[misc]
+                                        [f for _, f in members], index, costs, self.options.arborescence,  # type: ignore[misc]
+                                        self.options.potential))
+            else:
+                groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))  # type: ignore[arg-type]
+        return groups
+
+    def _partition(self, plans: Sequence[tuple[tuple[int, ...], object, bool]], depths: Sequence[dict[int, int]]
+                   ) -> list[frozenset[int]]:
         """Zero-one cost partitioning: each transition counts (costs 1) in exactly one pattern.
 
-        A transition goes to the pattern that holds most of the variables it writes (then most of those it
-        reads, then the earliest):
-        that pattern models its effect fully, while a pattern holding only part of it may never need it
-        (a reset that clears the torque flag together with the spindle). The achievers of a tour family
-        count in the family's first pattern.
+        A transition goes to the pattern that holds most of the variables it writes (a pattern holding
+        only part of its effect may never need it: a reset that clears the torque flag together with the
+        spindle), then to the one whose goal it is nearest to (the operator's steps count for the filters
+        the operator mounts, not for the bolts, whose projections hold the operator only because the
+        supervisor reads it), then the one holding most of what it reads, then the earliest. The
+        achievers of a tour family count in the family's first pattern (a landmark that holds a tour
+        variable never needs the atom achieved).
         """
         chosen: dict[int, int] = {}
-        best: dict[int, tuple[int, int]] = {}
+        best: dict[int, tuple[int, int, int]] = {}
+        achieving = {t.number for _, members, is_tour in plans if is_tour
+                     for _, found in members for t, _, _ in found}  # type: ignore[attr-defined]
         for n, (variables, _, _) in enumerate(plans):
             members = set(variables)
+            depth = depths[n]
             for t in self.system.transitions:
-                overlap = (len(t.writes & members), len(t.reads & members))  # then: its guard modelled best
-                if overlap[0] and overlap > best.get(t.number, (0, 0)):
-                    best[t.number] = overlap
+                if t.number in achieving:
+                    continue
+                written = t.writes & members
+                if not written:
+                    continue
+                key = (len(written), -min(depth.get(v, len(depth)) for v in written), len(t.reads & members))
+                if key > best.get(t.number, (0, -len(depth) - 1, 0)):
+                    best[t.number] = key
                     chosen[t.number] = n
         first_of_family: dict[int, int] = {}
         for n, (_, members, is_tour) in enumerate(plans):
@@ -225,14 +268,61 @@ class GoalHeuristic:
             if is_tour and first_of_family[id(members)] == n:
                 for _, found in members:  # type: ignore[attr-defined]
                     for t, _, _ in found:
-                        chosen.setdefault(t.number, n)  # unless it writes pattern variables too
+                        chosen.setdefault(t.number, n)
         costs: list[set[int]] = [set() for _ in plans]
         for number, n in chosen.items():
             costs[n].add(number)
         return [frozenset(c) for c in costs]
 
+    def _landmarks(self, tour: Sequence[tuple[Predicate, list[Achiever]]]) -> list[Predicate]:
+        """Enabling landmarks of tour atoms: `x in {enabling values, goal value}`, as further inside atoms.
+
+        A bolt is tightened only once placed, and placing is another resource's work (the
+        operator's) that the tour projections, leaving `x` out, never need. Every goal state
+        satisfies `x in {placed, tightened}`, so counting it with the inside atoms stays a lower
+        bound. One landmark per set of enabling writers: placing all 24 bolts is one task.
+        """
+        compiled = self.system.compiled
+        index, domains = compiled.index, compiled.domains
+        found: dict[frozenset[int], Predicate] = {}
+        for atom, achieved_by in tour:
+            (path,) = atom.paths()
+            x = index[path]
+            values = domains[x].values
+            enabling = set(values)
+            for t, _, _ in achieved_by:
+                guard = compiled.guard_of(t.source)
+                for item in guard.items if isinstance(guard, And) else (guard,):
+                    if item.paths() == {path}:
+                        enabling &= {u for u in values if item.eval({path: u})}
+            allowed = tuple(u for u in values if u in enabling or atom.eval({path: u}))
+            if len(allowed) == len(values):
+                continue
+            achieving = {t.number for t, _, _ in achieved_by}
+            writers = frozenset(t.number for t in self._writers.get(x, ()) if t.number not in achieving)
+            if writers and writers not in found:
+                found[writers] = In(path, allowed)
+        return list(found.values())
+
     def _written_by(self, variables: Iterable[int]) -> set[int]:
         return {t.number for v in variables for t in self._writers.get(v, ())}
+
+    def _depths(self, required: Sequence[int], seed: Iterable[int], excluded: set[int]) -> dict[int, int]:
+        """How many writer hops each variable of the cone is from the goal's own variables (0: theirs)."""
+        layer = [v for v in dict.fromkeys([*required, *sorted(set(seed))]) if v not in excluded or v in required]
+        depth = dict.fromkeys(layer, 0)
+        hops = 0
+        while layer:
+            hops += 1
+            following = []
+            for v in layer:
+                for t in self._writers.get(v, ()):
+                    for r in t.reads:
+                        if r not in depth and r not in excluded:
+                            depth[r] = hops
+                            following.append(r)
+            layer = following
+        return depth
 
     def _influence(self, required: Sequence[int], seed: Iterable[int], excluded: set[int]) -> list[int]:
         """The variables that can influence the required and seed ones, nearest first (no cap).
@@ -321,11 +411,21 @@ class GoalHeuristic:
         merged: list[tuple[set[int], set[int], list[Predicate]]] = []  # (own variables, cone, atoms)
         for atom in atoms:
             own = sorted(index[p] for p in atom.paths())
-            cone = set(self._fill(own, self._influence(own, (), excluded)))
+            # Merged on their cores (the atom's variables and what their writers read): the operator's
+            # three filters share one small pattern instead of each filling its own up to the cap.
+            paths = atom.paths()
+            if len(paths) == 1:  # what its achievers read (steps that need it already true do not count)
+                core = sorted({v for t, _, _ in achievers(self.system, atom, next(iter(paths))) for v in t.reads}
+                              - excluded)
+            else:
+                depth = self._depths(own, (), excluded)
+                core = sorted((v for v, d in depth.items() if d <= 1), key=depth.__getitem__)
+            cone = set(self._fill(own, core))
             best = None
             for group in merged:
                 union = group[1] | cone
-                if states(union) <= self.options.cap and (best is None or len(group[1] & cone) > len(best[1] & cone)):
+                if (states(union) <= self.options.cap and group[1] & cone
+                        and (best is None or len(group[1] & cone) > len(best[1] & cone))):
                     best = group
             if best is None:
                 merged.append((set(own), cone, [atom]))
