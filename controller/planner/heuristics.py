@@ -39,7 +39,7 @@ from .abstraction import INF, Abstraction, rename
 from .steps import StepSystem
 from .tours import Achiever, TourGroup, generate
 
-DEFAULT_CAP = 20_000  # the largest projection, in abstract states
+DEFAULT_CAP = 12_000  # the largest projection, in abstract states (cold builds grow with it)
 
 
 def goal_atoms(goals: Iterable[Predicate]) -> list[Predicate]:
