@@ -29,6 +29,7 @@ class PlanRequest:
     start: State
     goals: dict[str, Predicate]
     disabled: frozenset[str]
+    reason: str = ""  # why a plan is due
 
 
 @dataclass
@@ -191,8 +192,8 @@ class ControlCore:
         if self.need_plan_reason != "start" and goals:
             self.events.replans += 1
             self.events.log.append(f"replan: {self.need_plan_reason}")
-        self.need_plan_reason = None
-        return PlanRequest(self.generation, self.state, goals, self.disabled)
+        reason, self.need_plan_reason = self.need_plan_reason, None
+        return PlanRequest(self.generation, self.state, goals, self.disabled, reason)
 
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
         result, note = solve_goals(self.planner, request, self.joint_time_limit, self.single_time_limit)

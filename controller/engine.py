@@ -39,6 +39,7 @@ class PlanProgress:
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = []
         self.depends: list[frozenset[int]] = []
+        self.prior_writers: list[frozenset[int]] = []  # the last earlier step writing each variable it writes
         last_writer: dict[int, int] = {}
         readers_since_write: dict[int, list[int]] = {}
         relevant: set[int] = set()
@@ -49,6 +50,7 @@ class PlanProgress:
             for i in t.reads | t.writes:
                 if i in last_writer:
                     deps.add(last_writer[i])
+            self.prior_writers.append(frozenset(last_writer[i] for i in t.writes if i in last_writer))
             for i in t.writes:
                 deps.update(readers_since_write.get(i, ()))
                 readers_since_write[i] = []
@@ -76,6 +78,18 @@ class PlanProgress:
 
     def observed(self, j: int, state: State) -> bool:
         return all(state[i] == v for i, v in self.post[j])
+
+    def early(self, j: int, state: State) -> bool:
+        """Step j (an effect or automatic) visibly happened before steps it was ordered after.
+
+        Devices choose their own timing: the camera sees the operator enter the shared zone
+        before the robot's next move that the plan put first. Every variable j writes has
+        changed to j's value, and no step before it writes them. The steps it overtook are
+        still fired only where their own guards (the supervisor's included) hold.
+        """
+        post = self.post[j]
+        return (bool(post) and self.prior_writers[j] <= self.done
+                and all(state[i] == v and self.expected[i] != v for i, v in post))
 
     def pending(self) -> Iterable[int]:
         return (j for j in range(len(self.transitions)) if j not in self.done)
@@ -201,6 +215,8 @@ class Engine:
             changed = False
             for j in list(progress.pending()):
                 t = progress.transitions[j]
-                if t.kind is not TransitionKind.DELIBERATE and progress.ready(j) and progress.observed(j, state):
+                if t.kind is TransitionKind.DELIBERATE or not progress.observed(j, state):
+                    continue
+                if progress.ready(j) or progress.early(j, state):
                     progress.mark_done(j)
                     changed = True

@@ -285,8 +285,8 @@ class ControllerService:
             if isinstance(result, NoPlan):
                 log.warning("no plan: %s", result)
             elif result is not None:
-                log.info("plan: %d steps for %d goals in %.1f ms", len(result.steps), len(request.goals),
-                         result.stats.seconds * 1000)
+                log.info("plan: %d steps for %d goals in %.1f ms (%s)", len(result.steps), len(request.goals),
+                         result.stats.seconds * 1000, request.reason)
             self._planning = None
             self._status_due = True
             self._dirty.set()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from common.model import Model, Phase, Resource, ability, command, measured, operation, parse_predicate
+from common.model import Domain, Model, Phase, Resource, ability, command, measured, operation, parse_predicate
 from common.model.compiled import CompiledModel
 from controller.engine import Engine, PlanProgress
 from controller.planner import Plan, Planner
@@ -97,3 +97,37 @@ def test_a_disabled_resource_gets_no_commands() -> None:
     plan = plan_for(c, c.initial(), "a.on_m && b.on_m")
     tick = Engine(c).tick(c.initial(), progress=PlanProgress(c, plan), disabled=frozenset({"a"}))
     assert tick.fired == ["b.switch.enabled"] and tick.changed_commands == {"b.on_c": True}
+
+
+def lamp_and_zone() -> Model:
+    """A lamp whose switching reads the operator's zone, and the zone, which the operator changes."""
+    on_c, on_m = command("a.on_c", initial=False), measured("a.on_m")
+    switch = ability("a.switch", enabled=Phase(~on_c & ~on_m & parse_predicate("z.zone_m != robot"),
+                                               deliberate="a.on_c := true"),
+                     executing=Phase(on_c & ~on_m, effects="a.on_m := true"))
+    go_c = command("z.go_c", initial=False)
+    zone = measured("z.zone_m", Domain.enum("outside", "shared", "robot"), "outside")
+    outside = parse_predicate("z.zone_m == outside")
+    enter = ability("z.enter", enabled=Phase(~go_c & outside, deliberate="z.go_c := true"),
+                    executing=Phase(go_c & outside, effects="z.zone_m := shared"))
+    return Model("lz", (Resource("a", (on_c, on_m), (switch,)), Resource("z", (go_c, zone), (enter,))))
+
+
+def test_an_effect_seen_before_the_steps_it_was_ordered_after_is_no_deviation() -> None:
+    c = CompiledModel(lamp_and_zone())
+    engine = Engine(c)
+    plan = plan_for(c, c.initial(), "a.on_m && z.zone_m == shared")
+    names = [s.transition for s in plan.steps]
+    # The plan switches the lamp (reading the zone) before the zone changes: the zone's effect waits for it.
+    assert names.index("a.switch.enabled") < names.index("z.enter.executing.effect")
+    progress = PlanProgress(c, plan)
+    held = frozenset({"a"})  # the lamp's hub is late: the operator walks in first
+    tick = engine.tick(c.initial(), progress=progress, disabled=held)
+    assert tick.fired == ["z.enter.enabled"]
+    tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=held)
+    assert tick.replan is None
+    tick = engine.tick(tick.state, progress=progress)
+    assert tick.fired == ["a.switch.enabled"] and tick.replan is None
+    # A value no step of the plan writes is a deviation still.
+    tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "robot"}), progress=progress)
+    assert tick.replan is not None and "z.zone_m" in tick.replan
