@@ -155,7 +155,7 @@ class ControlCore:
         if self.forced:
             self._hold_forces()
         self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
-        if result.replan is not None:
+        if result.replan is not None and not self._revalidate(result.replan):
             self._want_plan(result.replan)
         for name in result.finished:
             self.errors.pop(name, None)
@@ -170,6 +170,26 @@ class ControlCore:
             # Completed plan whose goals do not hold: the world moved on; plan again.
             self._want_plan("plan complete but goals not reached")
         return result
+
+    def _revalidate(self, reason: str) -> bool:
+        """After the state left the plan: keep the rest of it if the engine would still take it to the goals.
+
+        Devices change what no plan step waits for (the camera sees the operator step out after a
+        task); replanning for each would stall the station for a search.
+        """
+        progress = self.progress
+        if progress is None or not reason.startswith("the state left the plan"):
+            return False
+        rest = [progress.plan.steps[j] for j in sorted(progress.pending())]
+        goals = {name: self.model.operation_by_name[name].goal for name in self.planned_goals}
+        if not rest or not goals:
+            return False
+        plan = self.planner.revalidate(self.state, rest, goals, self.disabled)
+        if plan is None:
+            return False
+        self.progress = PlanProgress(self.compiled, plan)
+        self.events.log.append(f"plan kept: {len(rest)} steps still reach the goals ({reason})")
+        return True
 
     def _only_finished_left(self, goals: frozenset[str]) -> bool:
         """The plan under way planned for these goals and more, and the others are finished."""

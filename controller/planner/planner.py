@@ -14,7 +14,7 @@ import itertools
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from common.model import Predicate, all_of
@@ -124,6 +124,27 @@ class Planner:
             unreachable = self._smallest_unreachable(start, names, goals, frozenset(disabled), deadline)
             result = attempt.result
             return NoPlan(result.reason, unreachable, result.stats)
+
+    def revalidate(
+        self,
+        start: State,
+        steps: Sequence[PlanStep],
+        goals: Mapping[str, Predicate],
+        disabled: frozenset[str] = frozenset(),
+    ) -> Plan | None:
+        """The rest of a plan replayed from a state it did not predict: the same steps if the engine would
+        still take them to the goals (the camera saw the operator leave where nothing waits for that), else
+        None. Touches no cache, so it may run beside a search in another thread."""
+        began = time.perf_counter()
+        compiled = self.compiled
+        is_goal = stable_goal(compiled, compiled.predicate(all_of(*goals.values())), disabled)
+        moves = [(compiled.by_name[step.transition].number, step.outcome) for step in steps]
+        plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
+        try:
+            check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals")
+        except PlanInvalid:
+            return None
+        return Plan(plan.steps, plan.states, plan.goals, PlanStats("revalidated", time.perf_counter() - began))
 
     def _attempt(
         self,
