@@ -16,16 +16,16 @@ from common.model import Model, Transition, TransitionKind, Value, apply_all
 
 # Seconds an effect takes at speed 1, by device type: the operator is slower than the robot.
 DEFAULT_DELAYS: dict[str, float] = {
-    "nutrunner": 0.25,
-    "ur": 0.3,
-    "rsp": 0.3,
+    "nutrunner": 0.12,
+    "ur": 0.15,
+    "rsp": 0.15,
     "dock": 0.1,
-    "lift": 0.6,
-    "mir": 1.5,
-    "agv": 1.5,
-    "rfid": 0.8,
+    "lift": 0.3,
+    "mir": 0.8,
+    "agv": 0.8,
+    "rfid": 0.4,
     "camera": 0.1,
-    "operator": 1.0,
+    "operator": 0.5,
 }
 FALLBACK_DELAY = 0.2
 
