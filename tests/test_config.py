@@ -228,3 +228,24 @@ real = 1
     assert lines.line_of(("hubs", "a.b", "devices", "real")) == 11
     assert lines.line_of(("hubs", "a.b")) == 10
     assert lines.line_of(("nowhere",)) is None
+
+
+@pytest.mark.parametrize("mode", ["real", "sim"])
+def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: str) -> None:
+    """Switching a device to real (or sim) needs no other edit: its driver's parameters are all there."""
+    from common.config import load_station
+    from hubs.drivers.base import Driver
+    from hubs.factory import build_drivers
+
+    from hubs.drivers import device_types
+
+    config, model = load_station(REPO_FILE)
+    with_driver = [r for r, d in config.resources.items() if config.device(r).type in device_types()]
+    assert {config.device(r).type for r in with_driver} >= {"nutrunner", "lift", "rsp", "dock", "ur", "mir", "rfid",
+                                                             "camera"}
+    for hub in config.hubs:
+        devices = [r for r in config.hubs[hub].devices if r in with_driver]
+        if not devices:
+            continue  # the operator and the AGV: emulated only
+        drivers = build_drivers(config, hub, model, mode=mode)
+        assert all(isinstance(drivers[r], Driver) and type(drivers[r]).__name__ != "EmulatedDriver" for r in devices)
