@@ -42,6 +42,12 @@ class PlanProgress:
         self.prior_writers: list[frozenset[int]] = []  # the last earlier step writing each variable it writes
         last_writer: dict[int, int] = {}
         readers_since_write: dict[int, list[int]] = {}
+        # A command sets its device going: the device's measured state changes later, by effects the
+        # plan lists further on. So a deliberate step waits for every earlier step that reads the
+        # device (the tracking that records the frame lifted while the robot stands at the frame),
+        # not only for those that read what the step itself writes.
+        readers_of_resource: dict[str, list[int]] = {}
+        resource_of = [path.split(".", 1)[0] for path in compiled.paths]
         relevant: set[int] = set()
         for j, t in enumerate(self.transitions):
             after = plan.states[j + 1]
@@ -50,6 +56,11 @@ class PlanProgress:
             for i in t.reads | t.writes:
                 if i in last_writer:
                     deps.add(last_writer[i])
+            if t.kind is TransitionKind.DELIBERATE:
+                for resource in {resource_of[i] for i in t.writes}:
+                    deps.update(readers_of_resource.get(resource, ()))
+            for resource in {resource_of[i] for i in t.reads}:
+                readers_of_resource.setdefault(resource, []).append(j)
             self.prior_writers.append(frozenset(last_writer[i] for i in t.writes if i in last_writer))
             for i in t.writes:
                 deps.update(readers_since_write.get(i, ()))

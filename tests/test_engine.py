@@ -2,7 +2,20 @@
 
 from __future__ import annotations
 
-from common.model import Domain, Model, Phase, Resource, ability, command, measured, operation, parse_predicate
+from common.model import (
+    Domain,
+    Model,
+    Phase,
+    Resource,
+    ability,
+    all_of,
+    command,
+    estimated,
+    measured,
+    operation,
+    parse_predicate,
+    tracking,
+)
 from common.model.compiled import CompiledModel
 from controller.engine import Engine, PlanProgress
 from controller.planner import Plan, Planner
@@ -100,17 +113,18 @@ def test_a_disabled_resource_gets_no_commands() -> None:
 
 
 def lamp_and_zone() -> Model:
-    """A lamp whose switching reads the operator's zone, and the zone, which the operator changes."""
+    """A lamp whose switching reads the zone camera; the camera sees the operator, whom the controller sends."""
     on_c, on_m = command("a.on_c", initial=False), measured("a.on_m")
     switch = ability("a.switch", enabled=Phase(~on_c & ~on_m & parse_predicate("z.zone_m != robot"),
                                                deliberate="a.on_c := true"),
                      executing=Phase(on_c & ~on_m, effects="a.on_m := true"))
-    go_c = command("z.go_c", initial=False)
+    go_c = command("o.go_c", initial=False)
+    send = ability("o.send", enabled=Phase(~go_c, deliberate="o.go_c := true"))
     zone = measured("z.zone_m", Domain.enum("outside", "shared", "robot"), "outside")
-    outside = parse_predicate("z.zone_m == outside")
-    enter = ability("z.enter", enabled=Phase(~go_c & outside, deliberate="z.go_c := true"),
-                    executing=Phase(go_c & outside, effects="z.zone_m := shared"))
-    return Model("lz", (Resource("a", (on_c, on_m), (switch,)), Resource("z", (go_c, zone), (enter,))))
+    see = ability("z.see", executing=Phase(parse_predicate("o.go_c && z.zone_m == outside"),
+                                           effects="z.zone_m := shared"))
+    return Model("lz", (Resource("a", (on_c, on_m), (switch,)), Resource("o", (go_c,), (send,)),
+                        Resource("z", (zone,), (see,))))
 
 
 def test_an_effect_seen_before_the_steps_it_was_ordered_after_is_no_deviation() -> None:
@@ -119,11 +133,11 @@ def test_an_effect_seen_before_the_steps_it_was_ordered_after_is_no_deviation() 
     plan = plan_for(c, c.initial(), "a.on_m && z.zone_m == shared")
     names = [s.transition for s in plan.steps]
     # The plan switches the lamp (reading the zone) before the zone changes: the zone's effect waits for it.
-    assert names.index("a.switch.enabled") < names.index("z.enter.executing.effect")
+    assert names.index("a.switch.enabled") < names.index("z.see.executing.effect")
     progress = PlanProgress(c, plan)
     held = frozenset({"a"})  # the lamp's hub is late: the operator walks in first
     tick = engine.tick(c.initial(), progress=progress, disabled=held)
-    assert tick.fired == ["z.enter.enabled"]
+    assert tick.fired == ["o.send.enabled"]
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=held)
     assert tick.replan is None
     tick = engine.tick(tick.state, progress=progress)
@@ -131,3 +145,20 @@ def test_an_effect_seen_before_the_steps_it_was_ordered_after_is_no_deviation() 
     # A value no step of the plan writes is a deviation still.
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "robot"}), progress=progress)
     assert tick.replan is not None and "z.zone_m" in tick.replan
+
+
+def test_a_command_waits_for_the_earlier_steps_that_read_its_device() -> None:
+    """The frame is recorded lifted only while the robot stands at the frame: the robot is not sent on before."""
+    on_c, on_m = command("a.on_c", initial=False), measured("a.on_m")
+    switch_on = ability("a.switch_on", enabled=Phase(~on_c & ~on_m, deliberate="a.on_c := true"),
+                        executing=Phase(on_c & ~on_m, effects="a.on_m := true"))
+    switch_off = ability("a.switch_off", enabled=Phase(on_c & on_m, deliberate="a.on_c := false"),
+                         executing=Phase(~on_c & on_m, effects="a.on_m := false"))
+    seen = estimated("e.seen_e", initial=False)
+    record = tracking("e.record", all_of("a.on_m", "!e.seen_e"), "e.seen_e := true")
+    model = Model("blink", (Resource("a", (on_c, on_m), (switch_on, switch_off)),), (seen,), (record,))
+    c = CompiledModel(model)
+    plan = plan_for(c, c.initial(), "e.seen_e && !a.on_m")
+    names = [s.transition for s in plan.steps]
+    progress = PlanProgress(c, plan)
+    assert names.index("e.record") in progress.depends[names.index("a.switch_off.enabled")]
