@@ -40,6 +40,8 @@ class PlanProgress:
         self.post: list[tuple[tuple[int, Value], ...]] = []
         self.depends: list[frozenset[int]] = []
         self.prior_writers: list[frozenset[int]] = []  # the last earlier step writing each variable it writes
+        # Earlier automatic and effect steps that must see the old values of what a step writes.
+        self.observers_before: list[frozenset[int]] = []
         last_writer: dict[int, int] = {}
         readers_since_write: dict[int, list[int]] = {}
         # A command sets its device going: the device's measured state changes later, by effects the
@@ -62,6 +64,9 @@ class PlanProgress:
             for resource in {resource_of[i] for i in t.reads}:
                 readers_of_resource.setdefault(resource, []).append(j)
             self.prior_writers.append(frozenset(last_writer[i] for i in t.writes if i in last_writer))
+            self.observers_before.append(frozenset(
+                k for i in t.writes for k in readers_since_write.get(i, ())
+                if self.transitions[k].kind is not TransitionKind.DELIBERATE))
             for i in t.writes:
                 deps.update(readers_since_write.get(i, ()))
                 readers_since_write[i] = []
@@ -95,11 +100,13 @@ class PlanProgress:
 
         Devices choose their own timing: the camera sees the operator enter the shared zone
         before the robot's next move that the plan put first. Every variable j writes has
-        changed to j's value, and no step before it writes them. The steps it overtook are
-        still fired only where their own guards (the supervisor's included) hold.
+        changed to j's value, and no step before it writes them. The commands it overtook are
+        still sent only where their own guards (the supervisor's included) hold; if it overtook
+        an automatic or effect step that needed the old values (the frame recorded lifted while
+        the robot is still at the frame), that step will never happen: not early, a deviation.
         """
         post = self.post[j]
-        return (bool(post) and self.prior_writers[j] <= self.done
+        return (bool(post) and self.prior_writers[j] <= self.done and self.observers_before[j] <= self.done
                 and all(state[i] == v and self.expected[i] != v for i, v in post))
 
     def pending(self) -> Iterable[int]:

@@ -162,3 +162,20 @@ def test_a_command_waits_for_the_earlier_steps_that_read_its_device() -> None:
     names = [s.transition for s in plan.steps]
     progress = PlanProgress(c, plan)
     assert names.index("e.record") in progress.depends[names.index("a.switch_off.enabled")]
+
+
+def test_an_effect_seen_before_a_record_that_needed_the_old_value_is_a_deviation() -> None:
+    base = lamp_and_zone()
+    seen = estimated("e.seen_e", initial=False)
+    record = tracking("e.record", all_of("a.on_m", "z.zone_m == outside", "!e.seen_e"), "e.seen_e := true")
+    c = CompiledModel(Model("lzr", base.resources, (seen,), (record,)))
+    plan = plan_for(c, c.initial(), "e.seen_e && z.zone_m == shared")
+    names = [s.transition for s in plan.steps]
+    assert names.index("e.record") < names.index("z.see.executing.effect")
+    progress = PlanProgress(c, plan)
+    engine = Engine(c)
+    tick = engine.tick(c.initial(), progress=progress, disabled=frozenset({"a"}))
+    assert tick.fired == ["o.send.enabled"]
+    # The operator is seen in the shared zone before the lamp is lit: the record can no longer happen.
+    tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=frozenset({"a"}))
+    assert tick.replan is not None and "z.zone_m" in tick.replan
