@@ -253,7 +253,9 @@ def test_tool_is_picked_up_leaves_home_and_returns() -> None:
 
 def test_locking_away_from_the_dock_couples_no_tool() -> None:
     model = robot_cell()
-    state = fire(model, model.initial_state(), "rsp.lock.enabled")
+    # The controller locks only where it picks a tool up: never sent on the way, the lock closes at once.
+    assert "rsp.lock.enabled" not in enabled(model, model.initial_state(), TransitionKind.DELIBERATE)
+    state = model.initial_state() | {"rsp.lock_c": True}  # a lock commanded before, the robot at home
     assert enabled(model, state, TransitionKind.EFFECT) == {"rsp.lock.starting.effect"}
     state = fire(model, state, "rsp.lock.starting.effect")
     assert state["rsp.locked_m"] and state["rsp.tool_m"] == "none"
@@ -275,8 +277,8 @@ def test_a_handheld_tool_leaves_while_the_operator_uses_it() -> None:
     state = fire(model, state, "dock.nutrunner_leaves.executing.effect")
     assert not state["dock.nutrunner_home_m"]
     state = goto(model, state, "dock_nutrunner")
-    state = fire(model, state, "rsp.lock.enabled")
-    assert "rsp.lock.pick_up_nutrunner" not in enabled(model, state, TransitionKind.EFFECT)
+    assert "rsp.lock.enabled" not in enabled(model, state, TransitionKind.DELIBERATE)  # nothing to pick up
+    assert "rsp.lock.pick_up_nutrunner" not in enabled(model, state | {"rsp.lock_c": True}, TransitionKind.EFFECT)
     state = fire(model, model.initial_state(), "human.tighten_by_hand.enabled")
     state = fire(model, state, "dock.nutrunner_leaves.executing.effect")
     state = fire(model, state, "human.tighten_by_hand.executing.effect")  # confirms: the instruction ends

@@ -15,6 +15,11 @@ it happen; its guard may read any resource, because effects model the physical w
 Unlocking a held tool anywhere but its dock pose would drop it; the station forbids that
 state by a specification rather than the changer refusing it, so that the controller's
 synthesized guards and the planner both see it.
+
+The controller locks only where a tool is picked up (at its dock pose, the tool at home)
+and unlocks only where the held tool is put down (or when it holds none). A plan must not
+count on an effect waiting: sent on the way to the dock, the lock would close at once on
+nothing, while the plan counted on it closing on the tool.
 """
 
 from __future__ import annotations
@@ -61,7 +66,8 @@ def rsp(name: str = "rsp", robot: str = "ur", dock: str = "dock",
     unlocking = ~lock_c & locked_m
     lock = ability(
         f"{name}.lock",
-        enabled=Phase(~lock_c & ~locked_m, deliberate=f"{lock_c.path} := true", guard=pressure_ok_m),
+        enabled=Phase(~lock_c & ~locked_m, deliberate=f"{lock_c.path} := true",
+                      guard=pressure_ok_m & any_of(*(picks_up(t) for t in TOOLS))),
         starting=Phase(locking, effects=[f"{locked_m.path} := true"],
                        guard=pressure_ok_m & ~any_of(*(picks_up(t) for t in TOOLS))),
         finished=lock_c & locked_m,
@@ -70,7 +76,8 @@ def rsp(name: str = "rsp", robot: str = "ur", dock: str = "dock",
     )
     unlock = ability(
         f"{name}.unlock",
-        enabled=Phase(lock_c & locked_m, deliberate=f"{lock_c.path} := false", guard=pressure_ok_m),
+        enabled=Phase(lock_c & locked_m, deliberate=f"{lock_c.path} := false",
+                      guard=pressure_ok_m & ((tool_m == NO_TOOL) | any_of(*(puts_down(t) for t in TOOLS)))),
         starting=Phase(unlocking, effects=[f"{locked_m.path} := false"],
                        guard=pressure_ok_m & ~any_of(*(puts_down(t) for t in TOOLS))),
         finished=~lock_c & ~locked_m,
