@@ -157,11 +157,14 @@ class Engine:
         requested: Sequence[str] = (),
         progress: PlanProgress | None = None,
         disabled: frozenset[str] = frozenset(),
+        blocked: frozenset[str] = frozenset(),
     ) -> TickResult:
+        """`disabled`: resources whose transitions do not fire (tracking excepted); `blocked`: ability
+        transitions that do not fire (they write a variable the operator forced)."""
         before = state
         result = TickResult(state)
         self._stage_operations(result, requested, disabled)
-        self._stage_abilities(result, progress, disabled)
+        self._stage_abilities(result, progress, disabled, blocked)
         self._finish_operations(result)
         result.changed_commands = {
             self.compiled.paths[i]: result.state[i] for i in self.command_indices if result.state[i] != before[i]
@@ -193,11 +196,13 @@ class Engine:
         return progressed
 
     # --- stage 2 ----------------------------------------------------------------------
-    def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str]) -> None:
+    def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str],
+                         blocked: frozenset[str]) -> None:
         def is_disabled(t: CompiledTransition) -> bool:
-            return bool(t.resources & disabled) and t.name not in self.tracking
+            return (bool(t.resources & disabled) and t.name not in self.tracking) or t.name in blocked
 
-        state, fired = self.compiled.close(result.state, is_disabled if disabled else None)
+        held = is_disabled if disabled or blocked else None
+        state, fired = self.compiled.close(result.state, held)
         result.fired += [t.name for t in fired]
         if progress is not None:
             while True:
@@ -218,7 +223,7 @@ class Engine:
                     state = t.outcomes[0](state)
                     result.fired.append(t.name)
                     progress.mark_done(j)
-                    state, autos = self.compiled.close(state, is_disabled if disabled else None)
+                    state, autos = self.compiled.close(state, held)
                     result.fired += [a.name for a in autos]
                     fired_one = True
                 if result.replan is not None or not fired_one:
