@@ -234,10 +234,9 @@ real = 1
 def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: str) -> None:
     """Switching a device to real (or sim) needs no other edit: its driver's parameters are all there."""
     from common.config import load_station
+    from hubs.drivers import device_types
     from hubs.drivers.base import Driver
     from hubs.factory import build_drivers
-
-    from hubs.drivers import device_types
 
     config, model = load_station(REPO_FILE)
     with_driver = [r for r, d in config.resources.items() if config.device(r).type in device_types()]
