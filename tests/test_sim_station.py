@@ -9,8 +9,8 @@
   say (`SimCell`);
 * `hubctl up --mode sim` runs a small station (tests/sim_station: the reference story
   with 2 bolts, 1 filter, 1 pipe; every device type) to completion;
-* the whole reference station in sim mode is the `slow` test (`pytest -m slow`), see
-  docs/sim-mode.md.
+* `hubctl up --mode sim` runs the whole reference station of hubs.toml to completion
+  (about two minutes), see docs/sim-mode.md.
 """
 
 from __future__ import annotations
@@ -222,3 +222,19 @@ async def test_small_station_runs_to_completion_in_sim_mode(tmp_path: Path, monk
     assert "finished: 18/18 operations" in output, output
     assert "emulated (no protocol simulator): agv (agv), human (operator)" in output
     print(f"small station in sim mode: {time.monotonic() - began:.1f} s\n{lines[-1] if lines else ''}")
+
+
+async def test_reference_station_runs_to_completion_in_sim_mode(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """The demonstrator of hubs.toml, every device with a protocol simulator on its real driver."""
+    monkeypatch.chdir(ROOT)
+    began = time.monotonic()
+    code, lines = await _run(REFERENCE, tmp_path, speed=1.0, time_limit=400)
+    output = "\n".join(lines)
+    assert code == 0, output
+    assert f"finished: {len(ea.build_model().operations)}/45 operations" in output, output
+    for device in ("Modbus coupler (rsp, dock)", "MiR REST API (mir)", "fake UR controller (ur)", "RFID reader (rfid)",
+                   "camera tracker feed (cam)", "nr (nutrunner): simulated inside hub pi-tool",
+                   "lift (lift): simulated inside hub pi-tool"):
+        assert device in output, output
+    print(f"reference station in sim mode: {time.monotonic() - began:.1f} s\n{lines[-1] if lines else ''}")
