@@ -14,6 +14,16 @@ consumer wait, so a burst of samples costs one wake-up and a slow consumer only
 ever sees the newest sample per key (`coalesce=True`, the default for state-based
 traffic). Callbacks never call zenoh and never block.
 
+High-rate streams (the controller ingests every hub's state) take whole batches:
+`get_batch()` / `batches()` return everything pending in one list, and `batch_s`
+spaces the batches so that samples arriving meanwhile join the next one instead of
+waking the loop one by one. `expect` names the concrete keys a
+wildcard subscription will see: zenoh then routes each sample through a declared
+key instead of matching it against every key the session knows, a cost that
+otherwise grows with the number of keys this session publishes (measured: the
+receive threads of a controller publishing 300 command keys spent ~40 % of a core
+matching 15,000 states/s; ~3 % with the state keys declared).
+
 Publications are dropped (after ~1 ms) when the link is congested rather than
 stalling the loop: right for state-based traffic, where the next one replaces a
 lost one; `publish(..., block=True)` for the rare message that must arrive.
@@ -31,6 +41,8 @@ Usage:
     async with Bus(zenoh_config("peer", connect=["tcp/decs.local:7447"])) as bus:
         bus.declare_liveliness(keys.alive("pi-tool"))
         async for sample in bus.subscribe(keys.cmd("nr")):   # newest per key
+            ...
+        async for batch in bus.subscribe(keys.all_state, batch_s=0.002).batches():  # lists
             ...
 """
 
@@ -238,17 +250,23 @@ class _Inbox(Generic[T]):
     `coalesce`: keep only the newest item per key (state-based traffic: an older state
     is worthless once a newer one arrived). Otherwise keep every item, oldest dropped
     beyond `maxlen`. The producer wakes the loop only when the consumer is waiting and
-    no wake-up is already scheduled, so bursts cost one cross-thread call.
+    no wake-up is already scheduled, so bursts cost one cross-thread call. `batch_s`:
+    `get_batch()` hands out at most one batch per `batch_s` (closing ends the wait at
+    once), so a steady stream arrives in batches rather than as one wake-up per sample,
+    and a consumer that cannot keep up still yields to the loop between batches.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, coalesce: bool, maxlen: int | None) -> None:
+    def __init__(self, loop: asyncio.AbstractEventLoop, coalesce: bool, maxlen: int | None,
+                 batch_s: float = 0.0) -> None:
         self._loop = loop
         self._coalesce = coalesce
+        self._batch_s = batch_s
         self._lock = threading.Lock()
         self._latest: dict[str, T] = {}
         self._queue: deque[T] = deque(maxlen=maxlen)
         self._waiter: asyncio.Future[None] | None = None
         self._wake_scheduled = False
+        self._not_before = 0.0  # loop time before which get_batch() hands out no batch (batch_s)
         self._closed = False
         self.dropped = 0  # samples replaced (coalesced) or pushed out (maxlen) before being read
 
@@ -274,11 +292,9 @@ class _Inbox(Generic[T]):
     def close(self) -> None:
         with self._lock:
             self._closed = True
-            wake = self._waiter is not None and not self._wake_scheduled
-            if wake:
-                self._wake_scheduled = True
-        if wake:
-            self._call_soon(self._wake)
+            wake = self._waiter is not None
+        if wake:  # at once, even if a wake-up is already scheduled for the end of `batch_s`
+            self._call_soon(self._wake_now)
 
     def _call_soon(self, callback: Callable[[], None]) -> None:
         # RuntimeError: the loop is closed, the process is shutting down, nobody waits any more.
@@ -287,6 +303,14 @@ class _Inbox(Generic[T]):
 
     # consumer side: the loop thread
     def _wake(self) -> None:
+        # Too soon after the last batch: wake later, and let what arrives meanwhile join the batch.
+        # `_wake_scheduled` stays set until then, so producers make no further cross-thread calls.
+        if not self._closed and self._loop.time() < self._not_before:
+            self._loop.call_at(self._not_before, self._wake_now)
+        else:
+            self._wake_now()
+
+    def _wake_now(self) -> None:
         with self._lock:
             self._wake_scheduled = False
             waiter = self._waiter
@@ -301,12 +325,26 @@ class _Inbox(Generic[T]):
             return self._queue.popleft()
         return None
 
+    def _take_locked(self) -> list[T]:
+        # One mode is in use per inbox, so at most one of the two holds anything.
+        if self._latest:
+            items = list(self._latest.values())
+            self._latest.clear()
+            return items
+        items = list(self._queue)
+        self._queue.clear()
+        return items
+
     def take_all(self) -> list[T]:
         with self._lock:
-            items = list(self._latest.values()) + list(self._queue)
-            self._latest.clear()
-            self._queue.clear()
-        return items
+            return self._take_locked()
+
+    async def _await_wake(self, waiter: asyncio.Future[None]) -> None:
+        try:
+            await waiter
+        finally:
+            with self._lock:
+                self._waiter = None
 
     async def get(self) -> T:
         while True:
@@ -317,18 +355,33 @@ class _Inbox(Generic[T]):
                 if self._closed:
                     raise BusClosed("subscription closed")
                 waiter = self._waiter = self._loop.create_future()
-            try:
-                await waiter
-            finally:
-                with self._lock:
-                    self._waiter = None
+            await self._await_wake(waiter)
+
+    async def get_batch(self) -> list[T]:
+        while True:
+            with self._lock:
+                due = self._closed or self._loop.time() >= self._not_before
+                items = self._take_locked() if due else []
+                if items:
+                    break
+                if self._closed:
+                    raise BusClosed("subscription closed")
+                waiter = self._waiter = self._loop.create_future()
+                if not due and (self._latest or self._queue) and not self._wake_scheduled:
+                    self._wake_scheduled = True  # pending, but too soon after the last batch
+                    self._loop.call_at(self._not_before, self._wake_now)
+            await self._await_wake(waiter)
+        if self._batch_s > 0:
+            self._not_before = self._loop.time() + self._batch_s
+        return items
 
 
 class Subscription(Generic[T]):
     """An async iterator over samples (or liveliness events) of one key expression.
 
     `async for s in sub` ends when the subscription or the bus is closed.
-    `take_all()` returns what is pending without waiting (e.g. once per controller tick).
+    `get_batch()` waits for what is pending and returns all of it; `batches()` iterates
+    over such lists. `take_all()` returns what is pending without waiting.
     """
 
     def __init__(self, bus: Bus, key: str, inbox: _Inbox[T]) -> None:
@@ -336,6 +389,7 @@ class Subscription(Generic[T]):
         self._bus = bus
         self._inbox = inbox
         self._zenoh: Any = None
+        self._keyexprs: list[zenoh.KeyExpr] = []  # `expect`ed keys, undeclared with the subscription
 
     @property
     def dropped(self) -> int:
@@ -344,6 +398,19 @@ class Subscription(Generic[T]):
     async def get(self) -> T:
         """The next item; raises BusClosed once closed."""
         return await self._inbox.get()
+
+    async def get_batch(self) -> list[T]:
+        """Everything pending (at least one item), oldest first; raises BusClosed once closed."""
+        return await self._inbox.get_batch()
+
+    async def batches(self) -> AsyncIterator[list[T]]:
+        """`get_batch()` until the subscription or the bus is closed."""
+        while True:
+            try:
+                batch = await self._inbox.get_batch()
+            except BusClosed:
+                return
+            yield batch
 
     def take_all(self) -> list[T]:
         return self._inbox.take_all()
@@ -364,6 +431,10 @@ class Subscription(Generic[T]):
             self._bus._forget(self)
             with contextlib.suppress(zenoh.ZError):  # the session is already closed
                 handle.undeclare()
+        keyexprs, self._keyexprs = self._keyexprs, []
+        for keyexpr in keyexprs:
+            with contextlib.suppress(zenoh.ZError, BusClosed):
+                self._bus.session.undeclare(keyexpr)
 
     async def __aenter__(self) -> Subscription[T]:
         return self
@@ -519,10 +590,15 @@ class Bus:
             self._publishers[(key, block)] = pub
         pub.put(payload)
 
-    def subscribe(self, key: str, *, coalesce: bool = True, maxlen: int | None = 10_000) -> Subscription[Sample]:
+    def subscribe(self, key: str, *, coalesce: bool = True, maxlen: int | None = 10_000, batch_s: float = 0.0,
+                  expect: Iterable[str] = ()) -> Subscription[Sample]:
         """Samples on `key` (wildcards allowed). `coalesce`: a slow consumer gets only the newest
-        sample per concrete key; otherwise every sample in order (the oldest dropped beyond `maxlen`)."""
-        inbox: _Inbox[Sample] = _Inbox(self._running_loop(), coalesce, maxlen)
+        sample per concrete key; otherwise every sample in order (the oldest dropped beyond `maxlen`).
+        `batch_s`: the least time between two batches of `get_batch()`/`batches()` (what arrives
+        meanwhile joins the next batch; 0: a batch as soon as anything is pending). `expect`: concrete keys
+        this subscription will see (e.g. every resource's state key under `res/*/state`), declared
+        to zenoh so that it routes them without matching each sample against every known key."""
+        inbox: _Inbox[Sample] = _Inbox(self._running_loop(), coalesce, maxlen, batch_s)
 
         def on_sample(sample: zenoh.Sample) -> None:  # zenoh thread: no zenoh calls, no blocking
             try:
@@ -533,6 +609,7 @@ class Bus:
                 log.exception("dropping a sample on %s", key)
 
         sub: Subscription[Sample] = Subscription(self, key, inbox)
+        sub._keyexprs = [self.session.declare_keyexpr(k) for k in dict.fromkeys(expect)]
         sub._zenoh = self.session.declare_subscriber(key, on_sample)
         self._declared.add(sub)
         return sub

@@ -5,6 +5,13 @@ than `stale_after`, its hub reports a problem (device lost, safe state, rejected
 command), or a command it was sent is not mirrored within `mirror_bound` (measured from when
 the oldest command the mirror does not cover yet was first sent, so that a hub that applies
 nothing is reported even while the commands keep changing).
+
+A `rejected` status names the hub's newest refused command, whoever sent it, and stays
+until the hub applies a valid one. It may concern this controller only if it appeared
+after the oldest of our commands the hub has not mirrored yet was sent; otherwise it was
+another controller's command (or garbage), of which the hub applied nothing: the resource
+stays healthy and the rejection is only reported (`Health.note`).
+
 Pure logic with an injectable clock; the controller process feeds it events.
 """
 
@@ -16,6 +23,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 HEALTHY_STATUSES = frozenset({"ok", "no_command"})
+REJECTED = "rejected"
 
 
 @dataclass
@@ -26,6 +34,7 @@ class ResourceWatch:
     last_state: float | None = None
     hub_status: str = "unknown"
     hub_detail: str = ""
+    status_since: float = 0.0  # when the hub's status (or its detail) last changed
     commanded_seq: int = -1  # none yet: the first command sent (seq 0) is watched too
     commanded_at: float | None = None
     mirrored_seq: int = -1
@@ -41,6 +50,7 @@ class Health:
     reason: str
     age: float | None  # seconds since the last state
     mirror_lag: int  # commands not yet mirrored
+    note: str = ""  # a problem the hub reports that does not concern this controller's commands
 
 
 class Watchdog:
@@ -62,7 +72,9 @@ class Watchdog:
             return
         w.last_state = self.clock()
         w.ever_seen = True
-        w.hub_status, w.hub_detail = status, detail
+        if status != w.hub_status or detail != w.hub_detail:
+            w.status_since = w.last_state
+            w.hub_status, w.hub_detail = status, detail
         if mirrored_seq is not None:
             w.mirrored_seq = mirrored_seq
             while w.unmirrored and w.unmirrored[0][0] <= mirrored_seq:
@@ -89,6 +101,13 @@ class Watchdog:
         now = self.clock()
         age = None if w.last_state is None else now - w.last_state
         lag = max(0, w.commanded_seq - w.mirrored_seq) if w.commanded_at is not None else 0
+        reported = ""
+        if w.hub_status not in HEALTHY_STATUSES:
+            reported = f"hub reports {w.hub_status}" + (f": {w.hub_detail}" if w.hub_detail else "")
+        # Not ours: every command we sent is mirrored (or we sent none), or the rejection was reported
+        # before the oldest one that is not was sent, so the refused command came from elsewhere.
+        ours = bool(w.unmirrored) and w.status_since >= w.unmirrored[0][1]
+        foreign = w.hub_status == REJECTED and not ours
         reason = ""
         if not w.alive:
             reason = f"hub {w.hub} is not alive (no liveliness token)"
@@ -96,13 +115,13 @@ class Watchdog:
             reason = f"no state received from hub {w.hub} yet"
         elif age > self.stale_after:
             reason = f"state is stale: last one {age:.2f} s ago (bound {self.stale_after} s)"
-        elif w.hub_status not in HEALTHY_STATUSES:
-            reason = f"hub reports {w.hub_status}" + (f": {w.hub_detail}" if w.hub_detail else "")
+        elif reported and not foreign:
+            reason = reported
         elif lag and w.unmirrored and now - w.unmirrored[0][1] > self.mirror_bound:
             seq, sent = w.unmirrored[0]
             mirrored = f"seq {w.mirrored_seq}" if w.mirrored_seq >= 0 else "none of this controller's commands"
             reason = f"mirror lags: command seq {seq} sent {now - sent:.2f} s ago, hub mirrors {mirrored}"
-        return Health(resource, w.hub, not reason, reason, age, lag)
+        return Health(resource, w.hub, not reason, reason, age, lag, reported if foreign else "")
 
     def unhealthy(self) -> dict[str, str]:
         result = {}

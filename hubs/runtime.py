@@ -58,7 +58,6 @@ class HubRuntime:
         self.slots = {name: ResourceSlot(name, d, Codec(model.resource_by_name[name])) for name, d in drivers.items()}
         self.selftest_reports: list[SelftestReport] = []
         self._tasks: list[asyncio.Task[None]] = []
-        self._wake = asyncio.Event()
 
     # --- lifecycle ------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -71,7 +70,17 @@ class HubRuntime:
                            for slot in self.slots.values()]
             self._tasks += [asyncio.create_task(self._external_inputs(), name="inputs")]
             self._tasks.append(asyncio.create_task(self._selftest(), name="selftest"))
-            await self._publish_loop(stop)
+            publisher = asyncio.create_task(self._publish_loop(), name="publish")
+            self._tasks.append(publisher)
+            # The publish loop sleeps between periods instead of waiting on `stop` (a task and a
+            # timeout every 20 ms); stopping cancels it. A crash of the loop ends the hub with it.
+            stopped = asyncio.create_task(stop.wait(), name="stop")
+            try:
+                await asyncio.wait((publisher, stopped), return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                stopped.cancel()
+            if publisher.done():
+                publisher.result()
         finally:
             for task in self._tasks:
                 task.cancel()
@@ -115,8 +124,11 @@ class HubRuntime:
             try:
                 command = slot.codec.decode_command(sample.payload)
             except (DomainError, ModelMismatch) as exc:
-                log.warning("hub %s: rejected command on %s: %s", self.hub, sample.key, exc)
-                slot.status, slot.detail = HubStatus.REJECTED, str(exc)
+                # Nothing of it is applied: the mirror stays the last applied command. The status says
+                # whose command was refused, so that a controller can tell another's from its own.
+                sender = _sender(exc)
+                log.warning("hub %s: rejected command%s on %s: %s", self.hub, sender, sample.key, exc)
+                slot.status, slot.detail = HubStatus.REJECTED, f"command{sender} refused: {exc}"
                 self._publish(slot)
                 continue
             except MessageError as exc:
@@ -215,9 +227,12 @@ class HubRuntime:
                     observe(values)
 
     # --- state out ------------------------------------------------------------------------
-    async def _publish_loop(self, stop: asyncio.Event) -> None:
-        next_at = time.monotonic()
-        while not stop.is_set():
+    async def _publish_loop(self) -> None:
+        """Every period: drive the safe state where commands stopped, then read and publish each
+        resource, on fixed deadlines (no drift). An applied command is published at once by `_commands`."""
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
             now = time.monotonic()
             for slot in self.slots.values():
                 if slot.last_command_at is not None and not slot.in_safe_state \
@@ -228,12 +243,10 @@ class HubRuntime:
                                                  f"no command within {self.command_timeout} s")
                 await self._read_and_publish(slot)
             next_at += self.period
-            delay = next_at - time.monotonic()
-            if delay < -self.period:  # fell behind (a pause): do not try to catch up
-                next_at = time.monotonic()
-                delay = 0
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), max(delay, 0))
+            now = loop.time()
+            if next_at < now - self.period:  # fell behind (a pause): do not try to catch up
+                next_at = now
+            await asyncio.sleep(next_at - now)  # <= 0: yields once, so commands are never starved
 
     async def _read_and_publish(self, slot: ResourceSlot) -> None:
         try:
@@ -257,6 +270,14 @@ class HubRuntime:
             message = slot.codec.state({}, status=HubStatus.ERROR, detail=str(exc)[:500], seq=slot.seq,
                                        hub=self.hub, mirror=slot.mirror)
         self.bus.publish(self.keys.state(slot.name), slot.codec.encode_state(message))
+
+
+def _sender(exc: MessageError) -> str:
+    """` seq 7 from ctl-1a2b` for a refused command whose envelope was readable, else ""."""
+    if not isinstance(exc, DomainError) or exc.controller is None:
+        return ""
+    controller = exc.controller if len(exc.controller) <= 64 else exc.controller[:61] + "..."  # may be garbage
+    return f" seq {exc.seq} from {controller}" if exc.seq is not None else f" from {controller}"
 
 
 __all__ = ["HubRuntime", "SelftestMessage"]

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Bus, BusClosed, KeyExprError, Keys, LivelinessEvent, Request, Sample, zenoh_config
+from common.bus import Bus, BusClosed, KeyExprError, Keys, LivelinessEvent, Request, Sample, _Inbox, zenoh_config
 
 PEER = Path(__file__).with_name("bus_peer.py")
 STARTUP = 20.0  # generous bound for a peer to start and connect on a loaded machine
@@ -174,6 +174,92 @@ async def test_local_publish_reaches_local_subscriber() -> None:
         sub = b.subscribe("local/*")
         b.publish("local/x", b"1")
         assert await asyncio.wait_for(sub.get(), 5) == Sample("local/x", b"1")
+
+
+# --- batches ------------------------------------------------------------------------------------
+
+def sample(key: str, i: int) -> Sample:
+    return Sample(key, str(i).encode())
+
+
+async def test_a_batch_holds_the_newest_sample_per_key_and_counts_the_replaced_ones() -> None:
+    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
+    for i in range(5):
+        inbox.put("k/a", sample("k/a", i))
+        inbox.put("k/b", sample("k/b", i))
+    inbox.put("k/c", sample("k/c", 0))
+    # Keys in the order they first arrived, each with its newest sample; the 8 replaced ones are dropped.
+    assert await inbox.get_batch() == [sample("k/a", 4), sample("k/b", 4), sample("k/c", 0)]
+    assert inbox.dropped == 8
+    inbox.put("k/b", sample("k/b", 5))
+    assert await inbox.get_batch() == [sample("k/b", 5)]
+    assert inbox.dropped == 8
+
+
+async def test_an_uncoalesced_batch_holds_every_sample_in_order() -> None:
+    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=3)
+    for i in range(5):
+        inbox.put("k/a", sample("k/a", i))
+    assert await inbox.get_batch() == [sample("k/a", i) for i in (2, 3, 4)]
+    assert inbox.dropped == 2  # pushed out beyond maxlen
+
+
+async def test_a_waiting_consumer_is_woken_by_another_thread_and_by_closing() -> None:
+    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
+    consumer = asyncio.create_task(inbox.get_batch())
+    await asyncio.sleep(0)
+    await asyncio.to_thread(inbox.put, "k/a", sample("k/a", 1))
+    assert await asyncio.wait_for(consumer, 5) == [sample("k/a", 1)]
+    consumer = asyncio.create_task(inbox.get_batch())
+    await asyncio.sleep(0)
+    inbox.close()
+    with pytest.raises(BusClosed):
+        await asyncio.wait_for(consumer, 5)
+
+
+async def test_batch_s_defers_the_next_wake_up_so_that_samples_join_one_batch() -> None:
+    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=None, batch_s=60.0)
+    inbox.put("k/a", sample("k/a", 0))
+    assert await inbox.get_batch() == [sample("k/a", 0)]  # pending samples are handed out at once
+    consumer = asyncio.create_task(inbox.get_batch())
+    for i in range(1, 4):
+        await asyncio.to_thread(inbox.put, "k/a", sample("k/a", i))
+        for _ in range(5):
+            await asyncio.sleep(0)
+    assert not consumer.done()  # within batch_s of the last batch: not woken, the samples wait
+    inbox.close()  # closing wakes it at once, with what is pending
+    assert await asyncio.wait_for(consumer, 5) == [sample("k/a", i) for i in (1, 2, 3)]
+
+
+async def test_batches_over_zenoh_keep_per_key_order_newest_wins() -> None:
+    async with Bus(zenoh_config("peer")) as b:
+        sub = b.subscribe("batch/*", batch_s=0.5, expect=["batch/a", "batch/b"])
+        everything = b.subscribe("batch/*", coalesce=False, maxlen=None)
+        for i in range(1000):
+            b.publish("batch/a", str(i).encode(), block=True)
+            b.publish("batch/b", str(i).encode(), block=True)
+        b.publish("batch/end", b"-1", block=True)  # one subscription delivers in order: the last one
+        newest: dict[str, int] = {}
+        delivered = 0
+        while "batch/end" not in newest:
+            batch = await asyncio.wait_for(sub.get_batch(), STARTUP)
+            assert len({s.key for s in batch}) == len(batch)  # one sample per key in a batch
+            for s in batch:
+                assert int(s.payload) > newest.get(s.key, -2), "an older sample after a newer one"
+                newest[s.key] = int(s.payload)
+            delivered += len(batch)
+        assert newest == {"batch/a": 999, "batch/b": 999, "batch/end": -1}
+        assert delivered + sub.dropped == 2001 and sub.dropped > 0
+        # Without coalescing a batch holds every sample, in order.
+        got: list[Sample] = []
+        async for batch in everything.batches():
+            got += batch
+            if got[-1].key == "batch/end":
+                everything.close()
+        assert [s.payload for s in got if s.key == "batch/a"] == [str(i).encode() for i in range(1000)]
+        assert len(got) == 2001 and everything.dropped == 0
+        sub.close()  # undeclares the expected keys too
+        assert [b async for b in sub.batches()] == []
 
 
 # --- liveliness --------------------------------------------------------------------------------

@@ -118,6 +118,23 @@ async def test_out_of_domain_and_garbage_commands_change_nothing(hub: HubUnderTe
     assert after.mirror.seq == 5 and after.run_m is False
 
 
+async def test_another_controllers_refused_command_is_reported_and_cleared_by_ours(hub: HubUnderTest) -> None:
+    hub.command(5, False)
+    await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 5)
+    raw = msgspec.msgpack.encode({"schema": 1, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 99,
+                                  "controller": "intruder", "time": time.time()})
+    hub.bus.publish(hub.keys.cmd("nr"), raw)
+    # Refused and said so, naming whose command it was; nothing of it applied.
+    rejected = await hub.state_where(lambda s: s.status == HubStatus.REJECTED)
+    assert "seq 99 from intruder" in rejected.detail and "run_c" in rejected.detail
+    assert rejected.mirror.seq == 5 and rejected.mirror.controller == "test-controller"
+    assert rejected.mirror.run_c is False and rejected.run_m is False
+    # Our controller's next re-send is applied again and clears the status at once.
+    hub.command(5, False)
+    cleared = await hub.state_where(lambda s: s.status != HubStatus.REJECTED)
+    assert cleared.status == HubStatus.OK and cleared.detail == "" and cleared.mirror.seq == 5
+
+
 async def test_silence_drives_the_safe_state(hub: HubUnderTest) -> None:
     hub.command(1, True)
     await hub.state_where(lambda s: s.run_m is True)

@@ -63,3 +63,61 @@ def test_hub_reported_problems_are_unhealthy() -> None:
     dog.hub_alive("ur10", True)
     dog.state_received("ur", "device_lost", "RTDE silent for 0.3 s", None)
     assert dog.health("ur").reason == "hub reports device_lost: RTDE silent for 0.3 s"
+
+
+def test_a_rejection_of_another_controllers_command_does_not_make_ours_unhealthy() -> None:
+    dog, _ = make()
+    dog.hub_alive("pi-tool", True)
+    # Before we command anything, a refused command cannot be ours.
+    dog.state_received("nr", "rejected", "command seq 1 from intruder refused: nr.run_c = 7 ...", None)
+    assert dog.health("nr").healthy
+    dog.command_sent("nr", 3)
+    dog.state_received("nr", "ok", "", 3)
+    # Another controller's command is refused while the hub mirrors our newest one: reported, not unhealthy.
+    dog.state_received("nr", "rejected", "command seq 9 from intruder refused: nr.run_c = 7 ...", 3)
+    health = dog.health("nr")
+    assert health.healthy and health.reason == ""
+    assert health.note == "hub reports rejected: command seq 9 from intruder refused: nr.run_c = 7 ..."
+    # Our re-sent command is applied again: the status clears.
+    dog.state_received("nr", "ok", "", 3)
+    assert dog.health("nr").healthy and dog.health("nr").note == ""
+
+
+def test_a_standing_rejection_does_not_count_against_a_command_sent_after_it() -> None:
+    dog, clock = make()
+    dog.hub_alive("pi-tool", True)
+    dog.command_sent("nr", 3)
+    dog.state_received("nr", "ok", "", 3)
+    clock.now += 0.01
+    dog.state_received("nr", "rejected", "command seq 9 from intruder refused: ...", 3)
+    clock.now += 0.01
+    dog.command_sent("nr", 4)  # a change: until the hub applies it, its states still say rejected
+    dog.state_received("nr", "rejected", "command seq 9 from intruder refused: ...", 3)
+    assert dog.health("nr").healthy and dog.health("nr").mirror_lag == 1
+    dog.state_received("nr", "ok", "", 4)
+    assert dog.health("nr").healthy
+
+
+def test_a_rejection_while_our_newest_command_is_not_mirrored_is_unhealthy_at_once() -> None:
+    dog, _ = make()
+    dog.hub_alive("pi-tool", True)
+    dog.command_sent("nr", 3)
+    dog.state_received("nr", "ok", "", 3)
+    dog.command_sent("nr", 4)
+    dog.state_received("nr", "rejected", "command seq 4 from ctl-1 refused: ...", 3)  # no need to wait for the bound
+    health = dog.health("nr")
+    assert not health.healthy and health.reason == "hub reports rejected: command seq 4 from ctl-1 refused: ..."
+    dog.state_received("nr", "ok", "", 4)
+    assert dog.health("nr").healthy
+
+
+def test_a_restarted_controller_counts_rejections_until_its_first_command_is_mirrored() -> None:
+    dog, _ = make()
+    dog.hub_alive("pi-tool", True)
+    dog.command_sent("nr", 0)
+    dog.reset_mirror("nr")  # the hub still mirrors the previous run's commands
+    dog.state_received("nr", "rejected", "command refused: ...", None)
+    assert not dog.health("nr").healthy
+    dog.state_received("nr", "ok", "", 0)
+    dog.state_received("nr", "rejected", "command seq 5 from intruder refused: ...", 0)
+    assert dog.health("nr").healthy

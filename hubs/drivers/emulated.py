@@ -19,7 +19,6 @@ from common.model import Model, Value
 from ..emulator import EffectEmulator
 from .base import Driver, SelftestReport
 
-IDLE_POLL_S = 0.02
 SAFE_STATES: dict[str, dict[str, Value]] = {
     "nutrunner": {"run_c": False},
     "mir": {"goto_c": "none"},
@@ -65,13 +64,25 @@ class EmulatedDriver(Driver):
             self._task = None
 
     async def _run(self) -> None:
+        # Effects change values only when one falls due, or when a command or an input changes
+        # what is enabled (`write`/`observe` set `_wake`): the task sleeps until then, never polls.
+        loop = asyncio.get_running_loop()
         while True:
-            self.values.update(self.emulator.step(self.values, time.monotonic()))
-            due = self.emulator.next_due()
-            timeout = IDLE_POLL_S if due is None else max(0.0, min(due - time.monotonic(), IDLE_POLL_S))
             self._wake.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout)
+            changes = self.emulator.step(self.values, time.monotonic())
+            if changes:
+                # What just fired may enable another effect: step again to schedule it, after
+                # letting the rest of the hub run.
+                self.values.update(changes)
+                await asyncio.sleep(0)
+                continue
+            due = self.emulator.next_due()
+            timer = None if due is None else loop.call_later(max(0.0, due - time.monotonic()), self._wake.set)
+            try:
+                await self._wake.wait()
+            finally:
+                if timer is not None:
+                    timer.cancel()
 
     def observe(self, values: Mapping[str, Value]) -> None:
         """Values of other resources' variables that this device's effects depend on."""

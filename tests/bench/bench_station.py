@@ -6,10 +6,10 @@
     nutrunner, 50 Hz): this process plays the controller, publishes a command and times
     the first state that mirrors it. Median and p99 (target p99 < 5 ms).
 (b) controller capacity: a real controller process (`hubctl controller`) with a synthetic
-    model of N nutrunners, all served by one load-generator process (this file with
-    --generator) that publishes each resource's state at 50 Hz (spread over the period,
-    as independent hubs would), mirrors the commands it receives and holds the hub's
-    liveliness token. N is stepped up; a step passes while the controller's tick median
+    model of N nutrunners, served by load-generator processes (this file with --generator,
+    one per 250 resources, each a hub of the station) that publish each resource's state
+    at 50 Hz (spread over the period, as independent hubs would), mirror the commands they
+    receive and hold their hub's liveliness token. N is stepped up; a step passes while the controller's tick median
     stays < 5 ms, no ingested state is older than 3 periods (p99 of publication ->
     ingestion), it ingests >= 95 % of what is offered, and every resource stays healthy.
     The controller measures itself (`StatusMessage.loop`). Target: >= 500 resources
@@ -55,6 +55,7 @@ HUB_RATE_HZ = 50.0
 TICK_MEDIAN_LIMIT_MS = 5.0
 AGE_LIMIT_MS = 3 * 1000.0 / HUB_RATE_HZ
 INGEST_SHARE = 0.95
+RESOURCES_PER_GENERATOR = 250  # a load generator is one Python process: several share the load, as hubs do
 FAULT_STATION = ROOT / "tests" / "fault_station" / "hubs.toml"
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
 
@@ -89,16 +90,24 @@ def stop(process: subprocess.Popen[bytes] | None) -> None:
         process.wait(5)
 
 
+def generator_slices(resources: int) -> list[range]:
+    """The resources of each load generator (each one a hub of the station, `gen<k>`)."""
+    count = max(1, -(-resources // RESOURCES_PER_GENERATOR))
+    bounds = [resources * k // count for k in range(count + 1)]
+    return [range(bounds[k], bounds[k + 1]) for k in range(count)]
+
+
 def write_station(directory: Path, station: str, resources: int) -> Path:
     lines = [
         "[station]", f'name = "{station}"', 'model = "tests.bench.bench_station:build_model"', "",
         "[network]", 'mode = "peer"', "lease_ms = 2000", "",
         "[controller]", 'host = "localhost"', 'name = "bench"', "command_rate_hz = 10", "tick_rate_hz = 20",
         "mirror_timeout_s = 1.0", "stale_after_s = 0.5", "",
-        "[hubs.gen]", 'host = "localhost"', f"rate_hz = {HUB_RATE_HZ}", "",
     ]
-    for i in range(resources):
-        lines += [f"[hubs.gen.devices.nr{i}]", 'type = "nutrunner"', ""]
+    for k, served in enumerate(generator_slices(resources)):
+        lines += [f"[hubs.gen{k}]", 'host = "localhost"', f"rate_hz = {HUB_RATE_HZ}", ""]
+        for i in served:
+            lines += [f"[hubs.gen{k}.devices.nr{i}]", 'type = "nutrunner"', ""]
     path = directory / f"bench_{resources}.toml"
     path.write_text("\n".join(lines))
     return path
@@ -106,9 +115,9 @@ def write_station(directory: Path, station: str, resources: int) -> Path:
 
 # --- (b) the load generator (a process of its own) -----------------------------------------------
 
-def generator(endpoint: str, station: str, hub: str, resources: int, rate_hz: float) -> None:
-    """Publish the state of `resources` nutrunners at `rate_hz` each, spread over the period, mirroring the
-    newest command of each, until stdin closes; then print what was sent as JSON."""
+def generator(endpoint: str, station: str, hub: str, resources: int, served: range, rate_hz: float) -> None:
+    """Publish the state of the nutrunners `served` (of `resources`) at `rate_hz` each, spread over the period,
+    mirroring the newest command of each, until stdin closes; then print what was sent as JSON."""
     import msgspec
     import zenoh
 
@@ -117,7 +126,7 @@ def generator(endpoint: str, station: str, hub: str, resources: int, rate_hz: fl
     os.environ[RESOURCES_ENV] = str(resources)
     model = build_model()
     keys = Keys(station)
-    codecs = [Codec(r) for r in model.resources]
+    codecs = [Codec(model.resources[i]) for i in served]
     session = zenoh.open(zenoh_config("peer", connect=[endpoint]))
     token = session.liveliness().declare_token(keys.alive(hub))
     latest: dict[str, bytes] = {}  # newest command payload per resource, set on zenoh's thread
@@ -127,25 +136,29 @@ def generator(endpoint: str, station: str, hub: str, resources: int, rate_hz: fl
         if resource is not None:
             latest[resource] = sample.payload.to_bytes()
 
+    # Declared, as the controller declares the state keys: one process standing in for many hubs
+    # otherwise pays zenoh's matching of every command against all the state keys it publishes.
+    # (It hears the other generators' commands too: the key layout has no narrower wildcard.)
+    keyexprs = [session.declare_keyexpr(keys.cmd(r.name)) for r in model.resources]
     subscriber = session.declare_subscriber(keys.all_cmd, on_command)
     publishers = [session.declare_publisher(keys.state(c.resource), congestion_control=zenoh.CongestionControl.DROP)
                   for c in codecs]
-    mirrors: list[object] = [None] * resources
-    decoded_from: list[bytes | None] = [None] * resources
+    count = len(codecs)
+    mirrors: list[object] = [None] * count
+    decoded_from: list[bytes | None] = [None] * count
     encode = msgspec.msgpack.Encoder().encode
     stopped = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), stopped.set()), daemon=True).start()
     period = 1.0 / rate_hz
     slots = 10  # publish a tenth of the resources every tenth of the period
-    per_slot = -(-resources // slots)
+    per_slot = -(-count // slots)
     sent, late, seq = 0, 0, 0
     began = next_at = time.monotonic()
     print("ready", flush=True)
     while not stopped.is_set():
         seq += 1
         for slot in range(slots):
-            now = time.time()
-            for i in range(slot * per_slot, min(resources, (slot + 1) * per_slot)):
+            for i in range(slot * per_slot, min(count, (slot + 1) * per_slot)):
                 codec = codecs[i]
                 payload = latest.get(codec.resource)
                 if payload is not None and payload is not decoded_from[i]:
@@ -156,7 +169,7 @@ def generator(endpoint: str, station: str, hub: str, resources: int, rate_hz: fl
                 state = codec.State(schema=SCHEMA, model_hash=codec.model_hash, run_m=False, tqr_m=False,
                                     fail_m=False, mirror=mirror,
                                     status=HubStatus.OK if mirror is not None else HubStatus.NO_COMMAND,
-                                    detail="", seq=seq, time=now, hub=hub)
+                                    detail="", seq=seq, time=time.time(), hub=hub)  # as a hub stamps it
                 publishers[i].put(encode(state))
                 sent += 1
             next_at += period / slots
@@ -168,17 +181,19 @@ def generator(endpoint: str, station: str, hub: str, resources: int, rate_hz: fl
                 next_at = time.monotonic()
     elapsed = time.monotonic() - began
     subscriber.undeclare()
+    for keyexpr in keyexprs:
+        session.undeclare(keyexpr)
     token.undeclare()
     session.close()
     print(json.dumps({"sent": sent, "elapsed": elapsed, "late_periods": late}), flush=True)
 
 
-# --- (b) one step: a controller and a generator with N resources -----------------------------------
+# --- (b) one step: a controller and load generators with N resources ---------------------------------
 
 @dataclass
 class Step:
     resources: int
-    offered: float = 0.0  # states/s the generator sent
+    offered: float = 0.0  # states/s the generators sent
     ingested: float = 0.0  # states/s the controller ingested
     dropped: int = 0
     tick_median_ms: float = 0.0
@@ -233,18 +248,21 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
         [sys.executable, "-m", "deploy.cli", "controller", "--config", str(config), "--loopback-port", str(port),
          "--db", str(directory / f"bench_{resources}.sqlite"), "--fresh"],
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    gen = None
+    gens: list[subprocess.Popen[bytes]] = []
     try:
         async with Bus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"])) as bus:
             statuses = bus.subscribe(keys.ctl("status"), coalesce=False, maxlen=None)
-            gen = subprocess.Popen(
-                [sys.executable, __file__, "--generator", f"tcp/127.0.0.1:{port}", station, "gen", str(resources)],
-                cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-            assert gen.stdout is not None
-            line = await asyncio.to_thread(gen.stdout.readline)
-            if line.strip() != b"ready":
-                step.problem = f"generator did not start: {line!r}"
-                return step
+            for k, served in enumerate(generator_slices(resources)):
+                gens.append(subprocess.Popen(
+                    [sys.executable, __file__, "--generator", f"tcp/127.0.0.1:{port}", station, f"gen{k}",
+                     str(resources), str(served.start), str(served.stop)],
+                    cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE))
+            for gen in gens:
+                assert gen.stdout is not None
+                line = await asyncio.to_thread(gen.stdout.readline)
+                if line.strip() != b"ready":
+                    step.problem = f"generator did not start: {line!r}"
+                    return step
 
             async def next_status(deadline: float) -> StatusMessage | None:
                 while time.monotonic() < deadline:
@@ -299,23 +317,29 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
             step.age_max_ms = max(w.state_age_ms_max for w in windows)
             step.unhealthy = sum(1 for h in last.health if not h.healthy)
     finally:
-        if gen is not None and gen.poll() is None:
-            assert gen.stdin is not None and gen.stdout is not None
-            gen.stdin.close()
+        for gen in gens:  # stdin closed: each one stops and reports
+            if gen.poll() is None and gen.stdin is not None:
+                gen.stdin.close()
+        late = 0
+        for gen in gens:
+            if gen.poll() is not None and gen.returncode != 0:
+                continue
+            assert gen.stdout is not None
             try:
                 out = gen.stdout.read().decode().strip().splitlines()
                 gen.wait(10)
                 report = json.loads(out[-1]) if out else {}
                 if report:
-                    step.offered = report["sent"] / report["elapsed"]
-                    if report["late_periods"]:
-                        step.notes.append(f"generator fell behind {report['late_periods']} times")
+                    step.offered += report["sent"] / report["elapsed"]
+                    late += report["late_periods"]
             except (subprocess.TimeoutExpired, ValueError):
                 gen.kill()
+        if late:
+            step.notes.append(f"the generators fell behind {late} times")
         stop(controller)
         log.close()
     if step.offered and step.offered < 0.95 * resources * HUB_RATE_HZ:
-        step.notes.append(f"the generator offered only {step.offered:,.0f} states/s: it is the bottleneck")
+        step.notes.append(f"the generators offered only {step.offered:,.0f} states/s: they are the bottleneck")
     return step
 
 
@@ -403,11 +427,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a smoke run in under a minute")
     parser.add_argument("--max-resources", type=int, help="step the capacity up to this many resources")
-    parser.add_argument("--generator", nargs=4, metavar=("ENDPOINT", "STATION", "HUB", "N"), help=argparse.SUPPRESS)
+    parser.add_argument("--generator", nargs=6, metavar=("ENDPOINT", "STATION", "HUB", "N", "FIRST", "STOP"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.generator:
-        endpoint, station, hub, n = args.generator
-        generator(endpoint, station, hub, int(n), HUB_RATE_HZ)
+        endpoint, station, hub, n, first, stop_at = args.generator
+        generator(endpoint, station, hub, int(n), range(int(first), int(stop_at)), HUB_RATE_HZ)
         return
 
     import bench_bus

@@ -1,0 +1,76 @@
+"""The controller's state ingestion: a batch of states (newest per resource) decoded and merged at once.
+
+The controller is built on the fault-test station but not run: batches are handed to it
+directly, as its state subscription hands them over (tests/test_bus.py covers the batching).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+
+from common.bus import Bus, Keys, Sample, zenoh_config
+from common.config import load_station
+from common.messages import HubStatus
+from controller.service import ControllerService
+
+STATION = Path(__file__).resolve().parent / "fault_station" / "hubs.toml"
+
+
+@pytest.fixture
+async def service(tmp_path: Path) -> AsyncIterator[ControllerService]:
+    config, model = load_station(STATION)
+    async with Bus(zenoh_config("peer")) as bus:
+        service = ControllerService(config, model, bus, db=str(tmp_path / "controller.sqlite"),
+                                    planner_process=False)
+        try:
+            yield service
+        finally:
+            service.store.close()
+
+
+def nr_state(service: ControllerService, run_m: bool | None, seq: int) -> bytes:
+    codec = service.codecs["nr"]
+    command = codec.command({"run_c": bool(run_m)}, seq=3, controller=service.controller_id)
+    return codec.encode_state(codec.state({"run_m": run_m, "tqr_m": False, "fail_m": False}, status=HubStatus.OK,
+                                          seq=seq, hub="pi-tool", mirror=command))
+
+
+async def test_a_batch_is_merged_and_a_malformed_state_is_dropped_and_logged_once(
+        service: ControllerService, caplog: pytest.LogCaptureFixture) -> None:
+    keys = Keys(service.config.station.name)
+    routes = service._state_routes()
+    assert set(routes) == {keys.state("nr"), keys.state("ur")}
+    index = service.compiled.index
+    ur_before = service.core.state[index["ur.pos_m"]]
+    batch = [Sample(keys.state("ur"), b"\x93garbage"),  # not a state: dropped, the rest of the batch stands
+             Sample(keys.state("nr"), nr_state(service, True, 7)),
+             Sample(keys.ctl("status"), b"")]  # not a resource's state key: ignored
+    with caplog.at_level(logging.WARNING, logger="statehub.controller"):
+        service._ingest_batch(batch, routes)
+        service._ingest_batch(batch, routes)
+    assert service.core.state[index["nr.run_m"]] is True
+    assert service.core.state[index["ur.pos_m"]] == ur_before
+    assert service._dirty.is_set()
+    dropped = [r.getMessage() for r in caplog.records if "dropped state" in r.getMessage()]
+    assert len(dropped) == 1 and keys.state("ur") in dropped[0]  # logged once per resource
+    # The watchdog heard from nr (mirroring our seq 3), not from ur; nr's mirror was taken once.
+    assert service.watchdog.watches["nr"].mirrored_seq == 3 and service.watchdog.watches["nr"].ever_seen
+    assert not service.watchdog.watches["ur"].ever_seen
+    assert service.mirrors == {"nr": {"run_c": True}}
+    assert len(service.meter.ages) == 2
+
+
+async def test_an_unknown_value_keeps_the_last_known_one_and_no_change_asks_for_no_tick(
+        service: ControllerService) -> None:
+    keys = Keys(service.config.station.name)
+    routes = service._state_routes()
+    index = service.compiled.index
+    service._ingest_batch([Sample(keys.state("nr"), nr_state(service, True, 1))], routes)
+    service._dirty.clear()
+    service._ingest_batch([Sample(keys.state("nr"), nr_state(service, None, 2))], routes)  # device lost: unknown
+    assert service.core.state[index["nr.run_m"]] is True
+    assert not service._dirty.is_set()
