@@ -5,6 +5,7 @@ from __future__ import annotations
 import msgspec
 
 from common.messages import Message
+from common.model.predicates import format_value
 
 
 class ResourceHealthInfo(msgspec.Struct, frozen=True):
@@ -73,3 +74,38 @@ class StateSnapshot(Message, kw_only=True):
     time: float
     values: dict[str, bool | int | str]
     forced: list[str] = msgspec.field(default_factory=list)
+
+
+# --- the console's requests: a query on `{station}/ctl/request`, one ConsoleReply back ---------
+
+ACTIONS = ("start", "reset", "stop", "pause", "resume", "confirm", "force", "unforce")
+
+
+class ConsoleRequest(Message, kw_only=True):
+    """An operator's action. `action` is one of ACTIONS; an unknown one is refused, not undecodable,
+    so that an older controller answers a newer console with a reason."""
+
+    action: str
+    operation: str = ""  # start, reset, stop
+    path: str = ""  # force, unforce
+    value: bool | int | str | None = None  # force
+    resource: str = ""  # confirm: the operator resource (default: the one that has an instruction)
+    origin: str = ""  # who asks (user@host), for the controller's event log
+
+    def describe(self) -> str:
+        """The request as the event log and the console show it, in the model's notation."""
+        action = self.action
+        if action in ("start", "stop", "reset"):
+            return f"{action} {self.operation}"
+        if action == "force":
+            return f"force {self.path} := {'?' if self.value is None else format_value(self.value)}"
+        if action == "unforce":
+            return f"unforce {self.path}"
+        if action == "confirm" and self.resource:
+            return f"confirm {self.resource}"
+        return action
+
+
+class ConsoleReply(Message, kw_only=True):
+    accepted: bool
+    reason: str = ""  # why it was refused, or what follows from accepting it

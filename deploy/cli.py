@@ -106,7 +106,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         from .station import Options, up
 
         return up(Options(config=args.config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
-                          time_limit=args.time_limit, resume=args.resume))
+                          time_limit=args.time_limit, resume=args.resume, hold=args.hold))
     from .local import run_in_process
 
     model = load_model(args.model)
@@ -155,7 +155,7 @@ def cmd_controller(args: argparse.Namespace) -> int:
 
     setup_logging("controller", args.verbose)
     return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
-                                      mirror_wait_s=args.mirror_wait))
+                                      mirror_wait_s=args.mirror_wait, hold=args.hold))
 
 
 def cmd_selftest(args: argparse.Namespace) -> int:
@@ -164,6 +164,13 @@ def cmd_selftest(args: argparse.Namespace) -> int:
     from .processes import run_selftest
 
     return asyncio.run(run_selftest(args.config, args.name, mode=args.mode, overrides=_overrides(args)))
+
+
+def cmd_console(args: argparse.Namespace) -> int:
+    from controller.console import run_console
+
+    listen = [] if args.listen == "none" else [args.listen]
+    return run_console(args.config, connect=args.connect, listen=listen)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -195,6 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")
     up.add_argument("--time-limit", type=positive, default=900.0, help="give up after this many seconds")
     up.add_argument("--resume", action="store_true", help="keep the controller's persisted state of the last run")
+    up.add_argument("--hold", action="store_true",
+                    help="start no operation: the operator starts them from `hubctl console`")
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")
@@ -217,6 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--fresh", action="store_true", help="forget the persisted state first")
     ctl.add_argument("--mirror-wait", type=positive, default=5.0, help="seconds to wait for the hubs' mirrors")
     ctl.add_argument("--loopback-port", type=int, help="run on loopback, listening on this port")
+    ctl.add_argument("--hold", action="store_true",
+                     help="with no persisted requests, start no operation: the operator starts them from the console")
     ctl.add_argument("-v", "--verbose", action="store_true")
     ctl.set_defaults(func=cmd_controller)
 
@@ -226,6 +237,16 @@ def build_parser() -> argparse.ArgumentParser:
     selftest.add_argument("--params-file", metavar="FILE",
                           help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
     selftest.set_defaults(func=cmd_selftest)
+
+    console = with_config(sub.add_parser(
+        "console", help="the operator console: watch and steer the running station (a terminal UI over Zenoh)"))
+    console.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                         help="the controller's zenoh endpoint, e.g. tcp/decs.local:7447 (default: its listeners "
+                              "in hubs.toml, on this host)")
+    console.add_argument("--listen", default="tcp/0.0.0.0:0", metavar="ENDPOINT",
+                         help="where the hubs may link to the console for their self-test reports (peers do not "
+                              "route; default: any interface, a free port; `none`: do not listen)")
+    console.set_defaults(func=cmd_console)
 
     plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
     plan.add_argument("goal", nargs="+", help="an operation name or a predicate, e.g. 'engine.bolt7_e == tightened'")

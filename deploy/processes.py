@@ -56,7 +56,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
-                         fresh: bool = False, mirror_wait_s: float = 5.0) -> int:
+                         fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False) -> int:
     from pathlib import Path
 
     from controller.service import ControllerService
@@ -68,7 +68,7 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
             Path(db_path + suffix).unlink(missing_ok=True)
     stop = stop_on_signals()
     async with Bus(zenoh_config_for(network(config, "controller", loopback_port))) as bus:
-        service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s)
+        service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold)
         logging.getLogger("statehub.controller").info(
             "controller %s: station %s, %d resources, %d operations", service.controller_id,
             config.station.name, len(service.hubs_of), len(model.operations))

@@ -77,6 +77,7 @@ class Options:
     failure: dict[str, float] = field(default_factory=dict)
     time_limit: float = 900.0
     resume: bool = False
+    hold: bool = False  # the controller starts no operation: the operator starts them from `hubctl console`
     run_dir: Path = RUN_DIR
 
 
@@ -87,6 +88,8 @@ def child_commands(config: StationConfig, options: Options, port: int) -> list[C
                   "--db", str(run_dir / "controller.sqlite")]
     if not options.resume:
         controller.append("--fresh")
+    if options.hold:
+        controller.append("--hold")
     children = [Child("controller", controller, run_dir / "controller.log")]
     for hub in config.hubs.values():
         argv = [*base, "hub", hub.name, "--config", options.config, "--loopback-port", str(port),
@@ -173,6 +176,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
         f"on 127.0.0.1:{port}, devices {options.mode or 'as in ' + options.config}, speed x{options.speed}")
     say(f"  logs in {options.run_dir}/")
+    say(f"  console: hubctl console --config {options.config} --connect tcp/127.0.0.1:{port}")
     began = time.monotonic()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

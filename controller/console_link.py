@@ -1,0 +1,176 @@
+"""The console's side of the bus: what the controller and the hubs publish, and the console's requests.
+
+`ConsoleLink.run()` keeps the newest `{station}/ctl/status`, `{station}/ctl/state` and
+self-test report of each hub (subscriptions coalesce: a console that draws slower than
+the controller publishes only ever sees the newest), and counts each change in
+`version` so that the screen redraws only when something arrived. `request()` asks the
+controller on `{station}/ctl/request` and returns its `ConsoleReply`; a controller that
+does not answer is a refusal with that reason.
+
+Peers do not route for each other: the console listens too, so that the hubs (told by
+the controller's gossip) link to it and it receives their self-test reports.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import getpass
+import logging
+import socket
+from collections.abc import Callable, Sequence
+from typing import Protocol
+
+import msgspec
+import zenoh
+
+from common.bus import Bus, BusClosed, Keys, Sample, Subscription, zenoh_config
+from common.ctl import ConsoleReply, ConsoleRequest, StateSnapshot, StatusMessage
+from common.messages import Message, MessageError, decode, encode
+
+log = logging.getLogger("statehub.console")
+
+REQUEST_TIMEOUT_S = 3.0
+SELFTEST_QUERY_PERIOD_S = 2.0
+
+
+class SelftestDevice(msgspec.Struct, frozen=True):
+    resource: str
+    ok: bool
+
+
+class SelftestSummary(Message, kw_only=True):
+    """The part of a hub's self-test report (hubs/selftest.py SelftestMessage) the console shows; the
+    controller side never imports hubs, and msgspec skips the fields not named here."""
+
+    hub: str
+    ok: bool
+    devices: list[SelftestDevice]
+
+
+class Feed(Protocol):
+    """What the console app reads: a live `ConsoleLink`, or a canned feed in benchmarks."""
+
+    status: StatusMessage | None
+    snapshot: StateSnapshot | None
+    selftests: dict[str, SelftestSummary]
+    version: int
+    connected: bool
+
+    async def run(self) -> None: ...
+
+    async def request(self, request: ConsoleRequest) -> ConsoleReply: ...
+
+
+def origin() -> str:
+    """Who is asking, for the controller's event log."""
+    with contextlib.suppress(Exception):
+        return f"{getpass.getuser()}@{socket.gethostname()}"
+    return "console"
+
+
+class ConsoleLink:
+    def __init__(self, station: str, connect: Sequence[str], *, listen: Sequence[str] = ("tcp/0.0.0.0:0",),
+                 lease_ms: int = 2000) -> None:
+        self.keys = Keys(station)
+        self.connect = list(connect)
+        self.config = zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
+        self.status: StatusMessage | None = None
+        self.snapshot: StateSnapshot | None = None
+        self.selftests: dict[str, SelftestSummary] = {}
+        self.version = 0
+        self.undecodable = 0
+        self.origin = origin()
+        self._bus: Bus | None = None
+        self._opened = asyncio.Event()
+
+    @property
+    def connected(self) -> bool:
+        return self._bus is not None
+
+    async def run(self) -> None:
+        async with Bus(self.config) as bus:
+            self._bus = bus
+            self._opened.set()
+            subscriptions = [
+                (bus.subscribe(self.keys.ctl("status")), self._on_status),
+                (bus.subscribe(self.keys.ctl("state")), self._on_snapshot),
+                (bus.subscribe(self.keys.all_selftest), self._on_selftest),
+            ]
+            tasks = [asyncio.create_task(self._consume(s, handler)) for s, handler in subscriptions]
+            tasks.append(asyncio.create_task(self._ask_selftests(bus)))
+            try:
+                await asyncio.gather(*tasks)
+            finally:
+                self._bus = None
+                for task in tasks:
+                    task.cancel()
+                await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def request(self, request: ConsoleRequest) -> ConsoleReply:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._opened.wait(), REQUEST_TIMEOUT_S)
+        bus = self._bus
+        if bus is None:
+            return ConsoleReply(accepted=False, reason="not connected to the station's bus")
+        if not request.origin:
+            request = msgspec.structs.replace(request, origin=self.origin)
+        try:
+            replies = await bus.get(self.keys.ctl("request"), payload=encode(request), timeout=REQUEST_TIMEOUT_S)
+        except (zenoh.ZError, BusClosed) as exc:  # the session closing under us: an answer, not a crash
+            return ConsoleReply(accepted=False, reason=f"the request could not be sent: {exc}")
+        for reply in replies:
+            if not reply.ok:
+                failure = reply.payload.decode(errors="replace")
+                return ConsoleReply(accepted=False, reason=f"the controller failed: {failure}")
+            try:
+                return decode(reply.payload, ConsoleReply)
+            except MessageError as exc:
+                return ConsoleReply(accepted=False, reason=f"unreadable reply from the controller: {exc}")
+        return ConsoleReply(accepted=False, reason=f"no controller answered within {REQUEST_TIMEOUT_S:.0f} s "
+                                                   f"(connecting to {', '.join(self.connect) or 'nobody'})")
+
+    # --- what arrives ------------------------------------------------------------------------
+    @staticmethod
+    async def _consume(subscription: Subscription[Sample], handler: Callable[[Sample], None]) -> None:
+        async for sample in subscription:
+            handler(sample)
+
+    def _decode(self, sample: Sample, type_: type[Message]) -> Message | None:
+        try:
+            return decode(sample.payload, type_)
+        except MessageError as exc:
+            if not self.undecodable:
+                log.warning("dropped %s: %s", sample.key, exc)
+            self.undecodable += 1
+            return None
+
+    def _on_status(self, sample: Sample) -> None:
+        status = self._decode(sample, StatusMessage)
+        if isinstance(status, StatusMessage):
+            self.status = status
+            self.version += 1
+
+    def _on_snapshot(self, sample: Sample) -> None:
+        snapshot = self._decode(sample, StateSnapshot)
+        if isinstance(snapshot, StateSnapshot):
+            self.snapshot = snapshot
+            self.version += 1
+
+    def _on_selftest(self, sample: Sample) -> None:
+        report = self._decode(sample, SelftestSummary)
+        if isinstance(report, SelftestSummary):
+            self.selftests[report.hub] = report
+            self.version += 1
+
+    async def _ask_selftests(self, bus: Bus) -> None:
+        """A hub publishes its report once, at boot: ask for those published before the console started,
+        until every hub the controller knows has answered."""
+        while True:
+            status = self.status
+            hubs = {h.hub for h in status.health} if status is not None else set()
+            if not hubs or hubs - set(self.selftests):
+                for reply in await bus.get(self.keys.all_selftest, timeout=1.0):
+                    if reply.ok:
+                        self._on_selftest(Sample(reply.key, reply.payload))
+            await asyncio.sleep(SELFTEST_QUERY_PERIOD_S)

@@ -1,0 +1,268 @@
+"""The console's requests at the controller: check one against the running station, apply it, say why not.
+
+A console asks on `{station}/ctl/request` (a Zenoh query carrying a `ConsoleRequest`) and
+gets one `ConsoleReply`: accepted, or refused with the reason. Every request and its
+answer goes into the controller's event log. What each action means:
+
+* **start** an operation: it is requested, and goes `executing` as soon as its precondition
+  holds (the reply says which part of the precondition it waits for).
+* **stop** an executing (or erroneous) operation, or a started one still waiting for its
+  precondition: back to `initial`, no longer requested, and the current plan (made for its
+  goal too) is dropped. Abilities already under way run to their end through their
+  automatic transitions; nothing new is started for the operation.
+* **reset** a finished (or erroneous) operation to `initial`, not requested: start it again
+  to repeat it. What its finish recorded stays recorded.
+* **pause** / **resume** automatic execution: while paused no deliberate transition fires
+  (neither plan steps nor operation starts), but automatic transitions, tracking and
+  operation finishes still follow the measured state, so a device that was started
+  finishes and resets as its model says, and nothing is lost. Resuming plans afresh.
+* **confirm**: the operator's confirm button (the smartwatch of the demonstrator). The
+  operator's model (common/resources/operator.py) confirms task T by the measured
+  `done_m` becoming true while `instr_c == T`; the automatic transition that then
+  withdraws the instruction records what the operator did. The console stands in for
+  the button: the controller holds `done_m` true until the instruction is withdrawn, then
+  `done_m` is the hub's measurement again (an emulated operator that never confirmed
+  reads false: the button is released). A confirmation the model would not allow yet
+  (its `confirm_when`, e.g. the frame not seated) is refused with the unmet condition,
+  so that the console never records work that was not done.
+* **force** a variable to a value of its domain, and **unforce** it (undo). A forced
+  variable holds its value whatever happens: a measured one ignores its hub, a command
+  one is sent to its hub as forced, and no ability transition that writes it fires
+  (a plan step that would waits). Unforcing gives the variable its own value back: a
+  measured one the hub's newest measurement, an estimated or command one its value from
+  before the force (nothing wrote it meanwhile). Operation states are not forced (start,
+  stop and reset change them). Forces are not persisted: a restarted controller holds
+  none, and what it persisted are the variables' own values.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+
+from common.bus import Bus, Request
+from common.ctl import ACTIONS, ConsoleReply, ConsoleRequest
+from common.messages import MessageError, decode, encode
+from common.model import Kind, Predicate, Value
+from common.model.predicates import And, format_value
+
+from .control import ControlCore
+
+log = logging.getLogger("statehub.controller.requests")
+
+OPERATOR_TYPE = "operator"
+
+
+def refused(reason: str) -> ConsoleReply:
+    return ConsoleReply(accepted=False, reason=reason)
+
+
+def accepted(note: str = "") -> ConsoleReply:
+    return ConsoleReply(accepted=True, reason=note)
+
+
+def unmet(predicate: Predicate, values: dict[str, Value]) -> str:
+    """The conjuncts of `predicate` that do not hold, in the model's notation."""
+    items = predicate.items if isinstance(predicate, And) else (predicate,)
+    return " && ".join(str(p) for p in items if not p.eval(values))
+
+
+def coerce(value: Value) -> Value:
+    """A value typed as text (`true`, `3`) as the model's value; anything else unchanged."""
+    if isinstance(value, str):
+        if value in ("true", "false"):
+            return value == "true"
+        if value.lstrip("-").isdigit():
+            return int(value)
+    return value
+
+
+class Requests:
+    """Checks and applies console requests to a `ControlCore`.
+
+    `persist(requested)` stores the requested operations (a restart keeps what the operator
+    started); `wake()` asks the controller for a tick now rather than at its next period.
+    """
+
+    def __init__(self, core: ControlCore, *, persist: Callable[[list[str]], None] = lambda _: None,
+                 wake: Callable[[], None] = lambda: None) -> None:
+        self.core = core
+        self.model = core.model
+        self.compiled = core.compiled
+        self.persist = persist
+        self.wake = wake
+        self.operators = [r for r in self.model.resources if r.device_type == OPERATOR_TYPE]
+        self._handlers: dict[str, Callable[[ConsoleRequest], ConsoleReply]] = {
+            "start": self._start, "stop": self._stop, "reset": self._reset, "pause": self._pause,
+            "resume": self._resume, "confirm": self._confirm, "force": self._force, "unforce": self._unforce,
+        }
+
+    # --- the bus side ---------------------------------------------------------------------
+    async def serve(self, bus: Bus, key: str) -> None:
+        """Answer requests on `key` until cancelled."""
+        queryable = bus.declare_queryable(key, self.answer)
+        try:
+            await asyncio.get_running_loop().create_future()  # forever: cancelled with the controller
+        finally:
+            queryable.undeclare()
+
+    async def answer(self, query: Request) -> bytes:
+        if query.payload is None:
+            return encode(refused("empty request: expected a ConsoleRequest"))
+        try:
+            request = decode(query.payload, ConsoleRequest)
+        except MessageError as exc:
+            log.warning("unreadable console request on %s: %s", query.key, exc)
+            return encode(refused(f"unreadable request: {exc}"))
+        return encode(self.apply(request))
+
+    # --- the decisions --------------------------------------------------------------------
+    def apply(self, request: ConsoleRequest) -> ConsoleReply:
+        handler = self._handlers.get(request.action)
+        if handler is None:
+            reply = refused(f"unknown action {request.action!r} (one of {', '.join(ACTIONS)})")
+        else:
+            reply = handler(request)
+        origin = f" ({request.origin})" if request.origin else ""
+        outcome = "accepted" if reply.accepted else "refused"
+        detail = f": {reply.reason}" if reply.reason else ""
+        self.core.events.log.append(f"console{origin}: {request.describe()} {outcome}{detail}")
+        log.info("console%s: %s %s%s", origin, request.describe(), outcome, detail)
+        if reply.accepted:
+            self.wake()
+        return reply
+
+    def _operation(self, name: str) -> str | ConsoleReply:
+        """The operation's state, or the refusal when there is no such operation."""
+        if name not in self.core.op_index:
+            return refused(f"no operation {name!r} in model {self.model.name}")
+        return self.core.op_state(name)
+
+    def _start(self, request: ConsoleRequest) -> ConsoleReply:
+        name = request.operation
+        state = self._operation(name)
+        if isinstance(state, ConsoleReply):
+            return state
+        if state == "finished":
+            return refused(f"{name} is finished: reset it to run it again")
+        if state == "executing":
+            return refused(f"{name} is already executing")
+        if state == "error":
+            reason = self.core.errors.get(name, ("", 0.0))[0]
+            return refused(f"{name} is in error and retried ({reason}): stop or reset it first")
+        operation = self.model.operation_by_name[name]
+        waiting = unmet(operation.pre, self.compiled.unpack(self.core.state))
+        if name in self.core.requested:
+            return refused(f"{name} is already started and waits for its precondition: {waiting}")
+        self.core.request(name)
+        self.persist(list(self.core.requested))
+        notes = [f"waits for its precondition: {waiting}"] if waiting else []
+        if self.core.paused:
+            notes.append("paused: it starts on resume")
+        return accepted("; ".join(notes))
+
+    def _stop(self, request: ConsoleRequest) -> ConsoleReply:
+        name = request.operation
+        state = self._operation(name)
+        if isinstance(state, ConsoleReply):
+            return state
+        if state == "finished":
+            return refused(f"{name} is finished: reset returns it to initial")
+        if state == "initial" and name not in self.core.requested:
+            return refused(f"{name} is not started")
+        running = state != "initial"
+        self.core.withdraw(name, f"operation {name} stopped by the operator" if running else None)
+        self.persist(list(self.core.requested))
+        return accepted("" if running else "it no longer waits to start")
+
+    def _reset(self, request: ConsoleRequest) -> ConsoleReply:
+        name = request.operation
+        state = self._operation(name)
+        if isinstance(state, ConsoleReply):
+            return state
+        if state == "executing":
+            return refused(f"{name} is executing: stop it first")
+        if state == "initial":
+            return refused(f"{name} is already initial")
+        self.core.withdraw(name, f"operation {name} reset by the operator" if state == "error" else None)
+        self.persist(list(self.core.requested))
+        return accepted()
+
+    def _pause(self, _request: ConsoleRequest) -> ConsoleReply:
+        if self.core.paused:
+            return refused("already paused")
+        self.core.pause()
+        return accepted()
+
+    def _resume(self, _request: ConsoleRequest) -> ConsoleReply:
+        if not self.core.paused:
+            return refused("not paused")
+        self.core.resume()
+        return accepted()
+
+    def _confirm(self, request: ConsoleRequest) -> ConsoleReply:
+        if not self.operators:
+            return refused(f"model {self.model.name} has no operator resource")
+        core = self.core
+        values = self.compiled.unpack(core.state)
+        if request.resource:
+            chosen = [r for r in self.operators if r.name == request.resource]
+            if not chosen:
+                names = ", ".join(r.name for r in self.operators)
+                return refused(f"{request.resource!r} is not an operator (operators: {names})")
+        else:
+            chosen = [r for r in self.operators if values[f"{r.name}.instr_c"] != "none"] or self.operators[:1]
+            if len(chosen) > 1:
+                names = ", ".join(r.name for r in chosen)
+                return refused(f"several operators have an instruction ({names}): name the one who confirms")
+        name = chosen[0].name
+        instr_path, done_path = f"{name}.instr_c", f"{name}.done_m"
+        task = values[instr_path]
+        if task == "none":
+            return refused(f"{name} has no instruction to confirm")
+        if values[done_path]:
+            return refused(f"{name} has already confirmed {task}")
+        if name in core.disabled:
+            return refused(f"{name} is unhealthy: its confirmation could not be followed now")
+        confirmation = self.compiled.by_name[f"{name}.{task}.executing.effect"]
+        if not confirmation.guard(core.state):
+            condition = unmet(self.compiled.guard_of(confirmation.source), values)
+            return refused(f"{name} cannot confirm {task} yet: {condition}")
+        instr = self.compiled.index[instr_path]
+        core.force(done_path, True, until=lambda state: state[instr] != task)
+        return accepted(f"{name} confirmed {task}")
+
+    def _variable(self, path: str) -> Kind | ConsoleReply:
+        variable = self.model.variables.get(path)
+        if variable is None:
+            return refused(f"no variable {path!r} in model {self.model.name}")
+        if path.startswith("op.") and path[3:] in self.core.op_index:
+            return refused(f"{path} is the state of an operation: start, stop or reset it instead")
+        return variable.kind
+
+    def _force(self, request: ConsoleRequest) -> ConsoleReply:
+        path = request.path
+        kind = self._variable(path)
+        if isinstance(kind, ConsoleReply):
+            return kind
+        if request.value is None:
+            return refused(f"force {path}: no value given")
+        value = coerce(request.value)
+        domain = self.model.variables[path].domain
+        if value not in domain:
+            return refused(f"{request.value!r} is outside the domain of {path} ({domain.describe()})")
+        self.core.force(path, value)
+        return accepted({Kind.MEASURED: "its hub's measurement is ignored until unforced",
+                         Kind.COMMAND: "sent to its hub as forced; transitions writing it wait",
+                         Kind.ESTIMATED: "transitions writing it wait until unforced"}[kind])
+
+    def _unforce(self, request: ConsoleRequest) -> ConsoleReply:
+        path = request.path
+        kind = self._variable(path)
+        if isinstance(kind, ConsoleReply):
+            return kind
+        if not self.core.unforce(path):
+            return refused(f"{path} is not forced")
+        own = self.core.state[self.compiled.index[path]]
+        return accepted(f"{path} is {format_value(own)} again")

@@ -1,0 +1,121 @@
+"""The console's panels without a station: rows from messages, the event feed, the force input, RowTable.sync."""
+
+from __future__ import annotations
+
+import pytest
+from textual.app import App, ComposeResult
+
+from common.config import load_station
+from common.ctl import OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.model import Kind
+from controller.console_station import StationInfo
+from controller.console_table import RowTable
+from controller.console_view import (
+    RECENT_S,
+    EventFeed,
+    OperationClock,
+    StateFilter,
+    StateView,
+    parse_force,
+)
+from deploy.cli import build_parser
+from tests.fault_station.harness import ROOT
+
+
+def status(events: list[str], *, controller: str = "ctl-1", health: list[ResourceHealthInfo] | None = None,
+           operations: list[OperationInfo] | None = None, uptime: float = 0.0) -> StatusMessage:
+    return StatusMessage(station="s", controller=controller, time=0.0, uptime=uptime, operations=operations or [],
+                         health=health or [], plan=[], plan_goals=[], plans=0, replans=0, no_plans=0, abilities=0,
+                         events=events)
+
+
+def test_event_feed_shows_each_line_of_the_sliding_window_once() -> None:
+    feed = EventFeed()
+    assert feed.new(status(["a", "b"])) == ["a", "b"]
+    assert feed.new(status(["a", "b"])) == []
+    assert feed.new(status(["b", "c", "d"])) == ["c", "d"]  # "a" slid out of the window
+    assert feed.new(status(["x"], controller="ctl-2")) == ["controller ctl-2 (was ctl-1)", "x"]
+
+
+def test_event_feed_notes_the_watchdogs_verdicts() -> None:
+    feed = EventFeed()
+    ok, lost = ResourceHealthInfo("nr", "pi-tool", True), ResourceHealthInfo("nr", "pi-tool", False, "hub gone")
+    assert feed.new(status([], health=[ok])) == []
+    assert feed.new(status([], health=[lost])) == ["watchdog: nr unhealthy: hub gone"]
+    assert feed.new(status([], health=[lost])) == []
+    assert feed.new(status([], health=[ok])) == ["watchdog: nr recovered"]
+
+
+def test_operation_clock_times_the_changes_the_controller_does_not() -> None:
+    clock = OperationClock()
+    assert clock.since(OperationInfo("Op", "executing", since=5.0), uptime=9.0) == 5.0
+    assert clock.since(OperationInfo("Op", "finished", since=12.0), uptime=12.5) == 12.0  # timed by the controller
+    assert clock.since(OperationInfo("Op", "initial", since=12.0), uptime=20.0) == 20.0  # a reset: seen at 20 s
+    assert clock.since(OperationInfo("Op", "initial", since=12.0), uptime=30.0) == 20.0
+
+
+def test_state_view_filters_by_path_kind_and_recent_change() -> None:
+    kinds = {"nr.run_c": Kind.COMMAND, "nr.run_m": Kind.MEASURED, "engine.bolt1_e": Kind.ESTIMATED}
+    view = StateView(kinds)
+    view.update(StateSnapshot(time=1.0, values={"nr.run_c": False, "nr.run_m": False, "engine.bolt1_e": "placed"}),
+                now=100.0)
+    assert view.changed_at == {}  # the first snapshot tells nothing about changes
+    view.update(StateSnapshot(time=2.0, values={"nr.run_c": True, "nr.run_m": False, "engine.bolt1_e": "placed"},
+                              forced=["nr.run_c"]), now=101.0)
+    assert list(view.rows(StateFilter(), now=102.0)) == ["nr.run_c", "nr.run_m", "engine.bolt1_e"]
+    assert list(view.rows(StateFilter(text="NR."), now=102.0)) == ["nr.run_c", "nr.run_m"]
+    assert list(view.rows(StateFilter(kind=Kind.ESTIMATED), now=102.0)) == ["engine.bolt1_e"]
+    assert list(view.rows(StateFilter(recent=True), now=102.0)) == ["nr.run_c"]
+    assert list(view.rows(StateFilter(recent=True), now=101.0 + RECENT_S + 1)) == []
+    row = view.rows(StateFilter(), now=102.0)["nr.run_c"]
+    assert (row[0], row[1], str(row[2]), str(row[3]), row[4]) == ("nr.run_c", "command", "true", "FORCED", "1 s ago")
+    assert StateFilter().next_kind().next_kind().kind is Kind.ESTIMATED
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("nr.run_c = true", ("nr.run_c", True)),
+    ("ur.pos_m := home", ("ur.pos_m", "home")),
+    ("  lift.level_c=2 ", ("lift.level_c", 2)),
+])
+def test_force_input_reads_the_model_notation(text: str, expected: tuple[str, object]) -> None:
+    assert parse_force(text) == expected
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("nr.run_c", "expected `path = value`"),
+    ("nr.run_c = ur.pos_m", "force takes a value, not another variable (ur.pos_m)"),
+])
+def test_force_input_says_what_is_wrong(text: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        parse_force(text)
+
+
+class TableApp(App[None]):
+    def compose(self) -> ComposeResult:
+        yield RowTable(("key", "value"), title="t", id="t")
+
+
+async def test_row_table_changes_only_what_differs_and_keeps_the_cursor_on_its_row() -> None:
+    app = TableApp()
+    async with app.run_test() as pilot:
+        table = app.query_one(RowTable)
+        assert table.sync({"a": ("a", "1"), "b": ("b", "2")}) == 2  # rows added
+        assert table.sync({"a": ("a", "1"), "b": ("b", "3")}) == 1  # one cell
+        assert table.sync({"a": ("a", "1"), "b": ("b", "3")}) == 0
+        assert table.sync({"a": ("a", "1"), "b": ("b", "3"), "c": ("c", "4")}) == 1  # appended
+        table.select("c")
+        assert table.sync({"a": ("a", "1"), "c": ("c", "4")}) == 1  # removed
+        assert table.sync({"c": ("c", "4"), "a": ("a", "a much wider value")}) == 2  # reordered: rebuilt
+        await pilot.pause()
+        assert table.selected_key() == "c"
+        assert [table.get_row_at(i)[1] for i in range(table.row_count)] == ["4", "a much wider value"]
+
+
+def test_console_finds_the_controller_from_hubs_toml_and_parses_its_options() -> None:
+    config, model = load_station(ROOT / "hubs.toml")
+    info = StationInfo.from_station(config, model)
+    assert info.default_connect == ("tcp/127.0.0.1:7447",)  # the controller listens on 0.0.0.0:7447
+    assert info.kinds["nr.run_c"] is Kind.COMMAND and info.modes["nr"] == "emulate"
+    assert info.goals["TightenBolt7"] == "engine.bolt7_e == tightened"
+    args = build_parser().parse_args(["console", "--connect", "tcp/decs.local:7447", "--listen", "none"])
+    assert (args.connect, args.listen, args.config) == (["tcp/decs.local:7447"], "none", "hubs.toml")
