@@ -15,6 +15,7 @@ class ResourceHealthInfo(msgspec.Struct, frozen=True):
     reason: str = ""
     age: float | None = None  # seconds since its last state
     mirror_lag: int = 0
+    note: str = ""  # reported by its hub but not about our commands (a refused command of another controller)
 
 
 class OperationInfo(msgspec.Struct, frozen=True):

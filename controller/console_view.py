@@ -55,7 +55,10 @@ def duration(seconds: float) -> str:
 def resource_rows(status: StatusMessage, info: StationInfo, selftests: Mapping[str, SelftestSummary]) -> dict[str, Row]:
     rows: dict[str, Row] = {}
     for h in status.health:
-        health = Text("ok", "green") if h.healthy else Text(h.reason or "unhealthy", "bold red")
+        if h.healthy:
+            health = Text(f"ok ({h.note})", "yellow") if h.note else Text("ok", "green")
+        else:
+            health = Text(h.reason or "unhealthy", "bold red")
         age = "-" if h.age is None else "< 1 s" if h.age < 1.0 else f"{h.age:.1f} s"
         mirror = Text("ok", "green") if h.mirror_lag == 0 else Text(f"{h.mirror_lag} behind", "yellow")
         rows[h.resource] = (h.resource, h.hub, info.modes.get(h.resource, "?"), health, age, mirror,

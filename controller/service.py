@@ -353,7 +353,7 @@ class ControllerService:
         health = []
         for resource in self.hubs_of:
             h = self.watchdog.health(resource)
-            health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag))
+            health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag, h.note))
         plan: list[PlanStepInfo] = []
         goals: list[str] = []
         progress = core.progress

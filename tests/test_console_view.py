@@ -119,3 +119,17 @@ def test_console_finds_the_controller_from_hubs_toml_and_parses_its_options() ->
     assert info.goals["TightenBolt7"] == "engine.bolt7_e == tightened"
     args = build_parser().parse_args(["console", "--connect", "tcp/decs.local:7447", "--listen", "none"])
     assert (args.connect, args.listen, args.config) == (["tcp/decs.local:7447"], "none", "hubs.toml")
+
+
+def test_resource_rows_show_health_and_a_note_about_another_controller() -> None:
+    from controller.console_view import resource_rows
+
+    info = StationInfo(station="s", kinds={})
+    health = [ResourceHealthInfo("nr", "pi-tool", True, age=0.1),
+              ResourceHealthInfo("ur", "ur10", True, age=0.1, note="command seq 9 from intruder refused"),
+              ResourceHealthInfo("lift", "pi-tool", False, "hub gone")]
+    rows = resource_rows(status([], health=health), info, {})
+    text = {resource: " ".join(str(cell) for cell in row) for resource, row in rows.items()}
+    assert "ok" in text["nr"] and "intruder" not in text["nr"]
+    assert "ok (command seq 9 from intruder refused)" in text["ur"]
+    assert "hub gone" in text["lift"]
