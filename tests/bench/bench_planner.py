@@ -166,6 +166,7 @@ def bench_ablation(reference: Reference) -> None:
         ("no potentials", HeuristicOptions(potential=0)),
         ("one pattern per family", HeuristicOptions(patterns=1)),
         ("no arborescence", HeuristicOptions(arborescence=False)),
+        ("no enabling landmarks", HeuristicOptions(landmarks=False)),
         ("design note (1 pattern, no arb., no pot.)", HeuristicOptions(patterns=1, arborescence=False, potential=0)),
     ]
     model = synthetic.build_model(24)
@@ -175,6 +176,8 @@ def bench_ablation(reference: Reference) -> None:
         ("synthetic N=24", compiled, None, compiled.initial(), synthetic_goals),
         ("reference 24 bolts, bolts placed", reference.compiled, reference.forbidden,
          reference.states["bolts placed"], reference.bolts),
+        ("reference 24 bolts, frame placed", reference.compiled, reference.forbidden,
+         reference.states["frame placed"], reference.bolts),
     ]
     rows = []
     for case, comp, forbidden, start, goals in cases:
