@@ -301,3 +301,34 @@ def test_planner_is_reusable_across_starts_and_goals() -> None:
     assert len(again.steps) == len(baseline.steps)
     # The heuristic (projections, distance tables) is built once per goal set and reused.
     assert planner.heuristic(tuple(goals.values())) is planner.heuristic(tuple(goals.values()))
+
+
+def robot_and_gripper() -> Model:
+    """A gripper that grabs only while the robot is still at the pick-up place, and a robot that leaves."""
+    go_c, away_m = command("r.go_c", initial=False), measured("r.away_m")
+    leave = ability("r.leave", enabled=Phase(~go_c & ~away_m, deliberate="r.go_c := true"),
+                    executing=Phase(go_c & ~away_m, effects="r.away_m := true"))
+    lock_c, held_m = command("g.lock_c", initial=False), measured("g.held_m")
+    grab = ability("g.grab", enabled=Phase(~lock_c & ~held_m, deliberate="g.lock_c := true", guard="!r.away_m"),
+                   executing=Phase(lock_c & ~held_m & "!r.away_m", effects="g.held_m := true"))
+    return Model("pick", (Resource("r", (go_c, away_m), (leave,)), Resource("g", (lock_c, held_m), (grab,))))
+
+
+def test_a_command_never_races_an_effect_under_way() -> None:
+    """Sending the robot off while the grab is due counts on the grab winning: the planner does not."""
+    c = CompiledModel(robot_and_gripper())
+    goal = parse_predicate("g.held_m && r.away_m")
+    plan = Planner(c).plan(c.initial(), {"g": goal})
+    assert isinstance(plan, Plan)
+    names = [s.transition for s in plan.steps]
+    assert names.index("g.grab.executing.effect") < names.index("r.leave.enabled")
+    baseline = breadth_first(c, c.initial(), goal)
+    assert isinstance(baseline, Plan) and len(baseline.steps) == len(plan.steps) == 4
+    # Sending the robot off right after the grab command is refused by the plan check too.
+    from controller.planner.validate import plan_from_moves
+
+    moves = [(c.by_name[n].number, 0) for n in
+             ("g.grab.enabled", "r.leave.enabled", "g.grab.executing.effect", "r.leave.executing.effect")]
+    racy = plan_from_moves(c, c.initial(), moves, ("g",), plan.stats)
+    with pytest.raises(PlanInvalid, match=r"r\.leave\.enabled starts an effect"):
+        validate_plan(c, c.initial(), racy, goal)

@@ -13,21 +13,25 @@ from common.model import Predicate
 from common.model.compiled import CompiledModel, CompiledTransition, State
 
 from .plans import NoPlan, Plan, PlanStats
-from .steps import stable_goal
+from .steps import RaceCheck, stable_goal
 from .validate import plan_from_moves
 
 DEFAULT_LIMIT_STATES = 2_000_000
 
 
 def micro_steps(
-    compiled: CompiledModel, state: State, disabled: frozenset[str]
+    compiled: CompiledModel, state: State, disabled: frozenset[str], race: RaceCheck | None = None
 ) -> list[tuple[CompiledTransition, int]]:
-    """The steps possible in `state` under the engine's semantics (urgent automatics)."""
+    """The steps possible in `state` under the engine's semantics (urgent automatics, no racing command)."""
     for t in compiled.automatic:
         if not (t.resources & disabled) and t.guard(state):
             return [(t, 0)]
+    race = race or RaceCheck(compiled, disabled)
     steps = []
-    for t in (*compiled.deliberate, *compiled.effects):
+    for t in compiled.deliberate:
+        if not (t.resources & disabled) and t.guard(state) and not race.races(state, t):
+            steps.extend((t, o) for o in range(len(t.outcomes)))
+    for t in compiled.effects:
         if not (t.resources & disabled) and t.guard(state):
             steps.extend((t, o) for o in range(len(t.outcomes)))
     return steps
@@ -52,6 +56,7 @@ def breadth_first(
 
     if is_forbidden is not None and is_forbidden(start):
         return NoPlan("the start state is forbidden", stats=stats(0, 0))
+    race = RaceCheck(compiled, disabled)
     parent: dict[State, tuple[State, int, int] | None] = {start: None}
     frontier = [start]
     expanded = generated = 0
@@ -60,7 +65,7 @@ def breadth_first(
         next_frontier: list[State] = []
         for state in frontier:
             expanded += 1
-            for t, o in micro_steps(compiled, state, disabled):
+            for t, o in micro_steps(compiled, state, disabled, race):
                 after = t.outcomes[o](state)
                 generated += 1
                 if after in parent or (is_forbidden is not None and is_forbidden(after)):

@@ -24,7 +24,7 @@ from .abstraction import Abstraction
 from .heuristics import GoalHeuristic, HeuristicOptions
 from .plans import NoPlan, Plan, PlanStats, PlanStep
 from .search import astar
-from .steps import StepSystem, stable_goal
+from .steps import RaceCheck, StepSystem, stable_goal
 from .validate import PlanInvalid, check_plan, plan_from_moves
 
 MAX_SUBSET = 3  # "no plan" looks for an unreachable subset of at most this many goals, smallest first
@@ -141,7 +141,8 @@ class Planner:
         moves = [(compiled.by_name[step.transition].number, step.outcome) for step in steps]
         plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
         try:
-            check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals")
+            check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals",
+                       RaceCheck(compiled, disabled))
         except PlanInvalid:
             return None
         return Plan(plan.steps, plan.states, plan.goals, PlanStats("revalidated", time.perf_counter() - began))
@@ -182,7 +183,7 @@ class Planner:
             plan = plan_from_moves(compiled, start, found.moves, names,
                                    stats("astar", found.expanded, found.generated, build), self._steps)
             try:
-                check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals")
+                check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals", system.race)
             except PlanInvalid as exc:  # a planner bug: never hand such a plan to the engine
                 return _Attempt(NoPlan(f"internal error, the plan failed validation: {exc}", (),
                                        plan.stats), False)

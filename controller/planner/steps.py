@@ -2,10 +2,11 @@
 
 In a state where an automatic ability transition is enabled, the only step is the
 first enabled one in model order (`CompiledModel.close` fires them one at a time);
-otherwise the steps are the enabled deliberate transitions and the enabled effect
-outcomes. The search works on *macro-steps*: one non-automatic step followed by the
-urgent automatic chain it triggers. Every micro state of the chain is checked (a
-forbidden one cuts the chain), so macro-steps describe exactly the micro-step graph.
+otherwise the steps are the enabled effect outcomes and the enabled deliberate
+transitions whose effect no effect already due would overtake (`RaceCheck`). The
+search works on *macro-steps*: one non-automatic step followed by the urgent automatic
+chain it triggers. Every micro state of the chain is checked (a forbidden one cuts the
+chain), so macro-steps describe exactly the micro-step graph.
 A goal counts only in a stable state (`stable_goal`): the engine fires the pending
 automatics before it looks at any goal, so a plan never relies on one waiting.
 
@@ -20,11 +21,52 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from common.model import TransitionKind
 from common.model.compiled import MAX_AUTOMATIC_STEPS, CompiledModel, CompiledTransition, State, predicate_source
 
 Move = tuple[int, int]  # (CompiledTransition.number, outcome index)
 StateTest = Callable[[State], bool]
 CYCLE_CHECK_AFTER = 64  # chain length from which repeated states are looked for (automatic cycles)
+
+
+class RaceCheck:
+    """Commands whose effect would race an effect already under way.
+
+    Effects take the time they take. A plan may not give a command whose effect and an
+    effect already due could each undo the other's condition: the changer told to lock on
+    the tool at the dock and the robot sent home, in either order, count on the lock closing
+    before the robot leaves; the real changer may lock on nothing. `races(state, t)`:
+    deliberate `t` would start an effect f while an effect e is due, and e firing first
+    disables f, or f firing first disables e.
+    """
+
+    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
+        effects = [e for e in compiled.effects if not (e.resources & disabled)]
+        self._watch: dict[int, tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]] = {}
+        for t in compiled.deliberate:
+            pairs = []
+            for f in effects:
+                if f.reads & t.writes:
+                    rivals = tuple(e for e in effects if e is not f and (e.writes & f.reads or f.writes & e.reads))
+                    if rivals:
+                        pairs.append((f, rivals))
+            if pairs:
+                self._watch[t.number] = tuple(pairs)
+
+    def races(self, state: State, t: CompiledTransition) -> bool:
+        pairs = self._watch.get(t.number)
+        if pairs is None:
+            return False
+        after = t.outcomes[0](state)
+        for f, rivals in pairs:
+            if not f.guard(after):
+                continue
+            for e in rivals:
+                if not e.guard(after):
+                    continue
+                if any(not f.guard(o(after)) for o in e.outcomes) or any(not e.guard(o(after)) for o in f.outcomes):
+                    return True
+        return False
 
 
 @dataclass(frozen=True)
@@ -61,6 +103,7 @@ class StepSystem:
             (t, o) for t in self.controlled for o in range(len(t.outcomes))
         )
         self.transitions: tuple[CompiledTransition, ...] = (*self.controlled, *self.automatic)
+        self.race = RaceCheck(compiled, disabled)
         self._enabled = self._enabled_function()
         self._readers: dict[int, list[int]] = {}
         for position, t in enumerate(self.automatic):
@@ -147,8 +190,10 @@ class StepSystem:
     def successors(self, state: State, goal: StateTest, forbidden: StateTest | None) -> list[Successor]:
         """Macro-steps from a stable state (no automatic transition enabled)."""
         result = []
-        chain = self.chain
+        chain, races = self.chain, self.race.races
         for t, o in self.enabled_moves(state):
+            if t.kind is TransitionKind.DELIBERATE and races(state, t):
+                continue
             found = chain(t.outcomes[o](state), [(t.number, o)], t.writes, goal, forbidden)
             if found is not None:
                 result.append(found)

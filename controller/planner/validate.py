@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 
-from common.model import Predicate
+from common.model import Predicate, TransitionKind
 from common.model.compiled import CompiledModel, CompiledTransition, State
 
 from .plans import Plan, PlanStats, PlanStep
+from .steps import RaceCheck
 
 
 class PlanInvalid(ValueError):
@@ -64,6 +65,7 @@ def validate_plan(
     transition of no disabled resource whose guard (synthesized part included) holds;
     where an automatic transition is enabled the step is the first enabled one in model
     order (automatics never wait) and an automatic step is never taken otherwise; no
+    command starts an effect that an effect already due would overtake (`RaceCheck`); no
     state, the start included, is forbidden; the last state satisfies the goal.
     """
     is_forbidden = compiled.predicate(forbidden) if forbidden is not None else None
@@ -78,8 +80,10 @@ def check_plan(
     is_forbidden: Callable[[State], bool] | None,
     disabled: frozenset[str],
     goal_text: str = "goal",
+    race: RaceCheck | None = None,
 ) -> None:
     """`validate_plan` with the goal and forbidden predicates already compiled (the planner caches them)."""
+    race = race or RaceCheck(compiled, disabled)
     if len(plan.states) != len(plan.steps) + 1:
         raise PlanInvalid(0, f"{len(plan.steps)} steps but {len(plan.states)} states (expected one more)")
     if plan.states[0] != start:
@@ -104,6 +108,8 @@ def check_plan(
             raise PlanInvalid(index, f"automatic {urgent.name} is enabled and must fire before {t.name}")
         if not t.guard(state):
             raise PlanInvalid(index, f"the guard of {t.name} does not hold: {compiled.guard_of(t.source)}")
+        if t.kind is TransitionKind.DELIBERATE and race.races(state, t):
+            raise PlanInvalid(index, f"{t.name} starts an effect that an effect already due would overtake")
         state = t.outcomes[step.outcome](state)
         if plan.states[index + 1] != state:
             raise PlanInvalid(index, "the recorded state after the step differs from the simulated one")
