@@ -94,8 +94,12 @@ class Requests:
         self.wake = wake
         self.operators = [r for r in self.model.resources if r.device_type == OPERATOR_TYPE]
         self._handlers: dict[str, Callable[[ConsoleRequest], ConsoleReply]] = {
-            "start": self._start, "stop": self._stop, "reset": self._reset, "pause": self._pause,
-            "resume": self._resume, "confirm": self._confirm, "force": self._force, "unforce": self._unforce,
+            "pause": self._pause, "resume": self._resume, "confirm": self._confirm, "force": self._force,
+            "unforce": self._unforce,
+        }
+        # Called with the operation's name and state, once it is known to exist.
+        self._operation_handlers: dict[str, Callable[[str, str], ConsoleReply]] = {
+            "start": self._start, "stop": self._stop, "reset": self._reset,
         }
 
     # --- the bus side ---------------------------------------------------------------------
@@ -120,7 +124,14 @@ class Requests:
     # --- the decisions --------------------------------------------------------------------
     def apply(self, request: ConsoleRequest) -> ConsoleReply:
         handler = self._handlers.get(request.action)
-        if handler is None:
+        on_operation = self._operation_handlers.get(request.action)
+        if on_operation is not None:
+            name = request.operation
+            if name in self.core.op_index:
+                reply = on_operation(name, self.core.op_state(name))
+            else:
+                reply = refused(f"no operation {name!r} in model {self.model.name}")
+        elif handler is None:
             reply = refused(f"unknown action {request.action!r} (one of {', '.join(ACTIONS)})")
         else:
             reply = handler(request)
@@ -133,17 +144,7 @@ class Requests:
             self.wake()
         return reply
 
-    def _operation(self, name: str) -> str | ConsoleReply:
-        """The operation's state, or the refusal when there is no such operation."""
-        if name not in self.core.op_index:
-            return refused(f"no operation {name!r} in model {self.model.name}")
-        return self.core.op_state(name)
-
-    def _start(self, request: ConsoleRequest) -> ConsoleReply:
-        name = request.operation
-        state = self._operation(name)
-        if isinstance(state, ConsoleReply):
-            return state
+    def _start(self, name: str, state: str) -> ConsoleReply:
         if state == "finished":
             return refused(f"{name} is finished: reset it to run it again")
         if state == "executing":
@@ -162,11 +163,7 @@ class Requests:
             notes.append("paused: it starts on resume")
         return accepted("; ".join(notes))
 
-    def _stop(self, request: ConsoleRequest) -> ConsoleReply:
-        name = request.operation
-        state = self._operation(name)
-        if isinstance(state, ConsoleReply):
-            return state
+    def _stop(self, name: str, state: str) -> ConsoleReply:
         if state == "finished":
             return refused(f"{name} is finished: reset returns it to initial")
         if state == "initial" and name not in self.core.requested:
@@ -176,11 +173,7 @@ class Requests:
         self.persist(list(self.core.requested))
         return accepted("" if running else "it no longer waits to start")
 
-    def _reset(self, request: ConsoleRequest) -> ConsoleReply:
-        name = request.operation
-        state = self._operation(name)
-        if isinstance(state, ConsoleReply):
-            return state
+    def _reset(self, name: str, state: str) -> ConsoleReply:
         if state == "executing":
             return refused(f"{name} is executing: stop it first")
         if state == "initial":
