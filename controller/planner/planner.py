@@ -66,14 +66,23 @@ class Planner:
         self._predicates: dict[Predicate, Callable[[State], bool]] = {}
         self._steps: dict[tuple[int, int], PlanStep] = {}
         self._systems: dict[frozenset[str], StepSystem] = {}
+        # Built once per set of disabled resources (20 ms on the reference station), shared by the search
+        # and `revalidate`; a dict read or write is atomic, so the lock-free `revalidate` may use it.
+        self._races: dict[frozenset[str], RaceCheck] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
 
     # --- caches -----------------------------------------------------------------------------
+    def _race(self, disabled: frozenset[str]) -> RaceCheck:
+        race = self._races.get(disabled)
+        if race is None:
+            race = self._races[disabled] = RaceCheck(self.compiled, disabled)
+        return race
+
     def _system(self, disabled: frozenset[str]) -> StepSystem:
         system = self._systems.get(disabled)
         if system is None:
-            system = self._systems[disabled] = StepSystem(self.compiled, disabled)
+            system = self._systems[disabled] = StepSystem(self.compiled, disabled, self._race(disabled))
         return system
 
     def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset()) -> GoalHeuristic:
@@ -134,7 +143,7 @@ class Planner:
     ) -> Plan | None:
         """The rest of a plan replayed from a state it did not predict: the same steps if the engine would
         still take them to the goals (the camera saw the operator leave where nothing waits for that), else
-        None. Touches no cache, so it may run beside a search in another thread."""
+        None. Takes no lock (it reads only the race checks' dict), so it may run beside a search in another thread."""
         began = time.perf_counter()
         compiled = self.compiled
         is_goal = stable_goal(compiled, compiled.predicate(all_of(*goals.values())), disabled)
@@ -142,7 +151,7 @@ class Planner:
         plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
         try:
             check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals",
-                       RaceCheck(compiled, disabled))
+                       self._race(disabled))
         except PlanInvalid:
             return None
         return Plan(plan.steps, plan.states, plan.goals, PlanStats("revalidated", time.perf_counter() - began))

@@ -85,7 +85,8 @@ def _generate(name: str, body: list[str]) -> Callable[..., object]:
 class StepSystem:
     """The ability transitions of a compiled model minus those touching a disabled resource."""
 
-    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
+    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset(),
+                 race: RaceCheck | None = None) -> None:
         self.compiled = compiled
         self.disabled = disabled
         self.by_number = compiled.transitions
@@ -103,7 +104,7 @@ class StepSystem:
             (t, o) for t in self.controlled for o in range(len(t.outcomes))
         )
         self.transitions: tuple[CompiledTransition, ...] = (*self.controlled, *self.automatic)
-        self.race = RaceCheck(compiled, disabled)
+        self.race = race or RaceCheck(compiled, disabled)
         self._enabled = self._enabled_function()
         self._readers: dict[int, list[int]] = {}
         for position, t in enumerate(self.automatic):
