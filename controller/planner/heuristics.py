@@ -182,19 +182,19 @@ class GoalHeuristic:
         landmarks = self._landmarks(tour) if self.options.landmarks else []
         self._candidates: list[list[Group]] = []
         wholes = (False, True) if self.options.patterns > 1 else (False,)
+        family_depths = {seed: self._depths((), seed, excluded) for seed in families}
         for enabling in (True, False) if landmarks else (False,):
             merged = self._merge([*inside, *landmarks] if enabling else inside, excluded)
+            merged_depths = [self._depths(required, (), excluded) for required, _ in merged]
             for whole in wholes:
                 plans: list[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate],
                                   bool]] = []
                 depths: list[dict[int, int]] = []
                 for seed, members in families.items():
-                    depth = self._depths((), seed, excluded)
                     for v in self._patterns((), seed, excluded, whole):
                         plans.append((v, members, True))
-                        depths.append(depth)
-                for required, atoms in merged:
-                    depth = self._depths(required, (), excluded)
+                        depths.append(family_depths[seed])
+                for (required, atoms), depth in zip(merged, merged_depths, strict=True):
                     for v in self._patterns(required, (), excluded, whole):
                         plans.append((v, atoms, False))
                         depths.append(depth)
