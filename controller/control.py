@@ -9,16 +9,17 @@ the event loop, hands the result back with `adopt()`, and publishes what changed
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 from common.model import Kind, Predicate, Value
 from common.model.compiled import CompiledModel, State
 
 from .engine import Engine, PlanProgress, TickResult
-from .planner import NoPlan, Plan, Planner
+from .planner import Budget, NoPlan, Plan, Planner
 
-ERROR_RETRY_S = 2.0
+RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
+RETRY_MAX_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,17 @@ class Force:
 
 
 @dataclass
+class GoalError:
+    """An operation whose goal has no plan: why, since when, and when it is tried again (backoff)."""
+
+    reason: str
+    since: float
+    retry_at: float
+    attempts: int = 1
+    proven: bool = False  # shown unreachable, not merely not found within the budget
+
+
+@dataclass
 class ControlEvents:
     replans: int = 0
     plans: int = 0
@@ -52,32 +64,57 @@ class ControlEvents:
     log: list[str] = field(default_factory=list)
 
 
-def solve_goals(planner: Planner, request: PlanRequest, joint_time_limit: float,
-                single_time_limit: float) -> tuple[Plan | NoPlan | None, str]:
-    """A shortest plan for all goals together; if that is not found within the budget (but not
-    proven impossible either), a shortest plan for the first goal that has one, so the station
-    makes progress — as the original planner gave up minimality for hard cases. The note says so."""
+def anytime_answers(planner: Planner, request: PlanRequest, budget: Budget) -> Iterator[tuple[Plan | NoPlan | None,
+                                                                                             str]]:
+    """The answers to one request: the portfolio's for all goals together; if it neither finds a plan nor
+    shows one impossible, the first goal alone that has one (progress over minimality, as the original
+    planner did for hard cases), with a note that says so."""
     if not request.goals:
-        return None, ""
-    result = planner.plan(request.start, request.goals, request.disabled, time_limit=joint_time_limit)
-    if not isinstance(result, NoPlan) or result.unreachable or len(request.goals) < 2:
-        return result, ""
-    for name, goal in request.goals.items():
-        single = planner.plan(request.start, {name: goal}, request.disabled, time_limit=single_time_limit)
-        if isinstance(single, Plan):
-            return single, (f"planned {name} alone: {len(request.goals)} goals together were not solved "
-                            f"within {joint_time_limit:.0f} s ({result.reason})")
-    return result, ""
+        yield None, ""
+        return
+    last: Plan | NoPlan | None = None
+    for last in planner.plan_anytime(request.start, request.goals, request.disabled, budget):
+        if isinstance(last, Plan):
+            yield last, ""
+    if isinstance(last, Plan):
+        return
+    assert isinstance(last, NoPlan)
+    if not last.proven and len(request.goals) > 1:
+        for name, goal in request.goals.items():
+            single = planner.plan(request.start, {name: goal}, request.disabled, budget=budget)
+            if isinstance(single, Plan):
+                yield single, (f"planned {name} alone: {len(request.goals)} goals together were not solved "
+                               f"within the budget ({last.reason})")
+                return
+    yield last, ""
+
+
+def solve_goals(planner: Planner, request: PlanRequest, budget: Budget) -> tuple[Plan | NoPlan | None, str]:
+    """The last (best) of `anytime_answers`: what a caller that can wait for the whole budget takes."""
+    best: tuple[Plan | NoPlan | None, str] = (None, "")
+    for answer, note in anytime_answers(planner, request, budget):
+        best = (answer, note or best[1])
+    return best
+
+
+def live_budget(first_seconds: float = 3.0, improve_seconds: float = 10.0, hold_seconds: float = 0.15,
+                stop: Callable[[], bool] | None = None) -> Budget:
+    """Wall-clock limits for a live controller: the satisficing member answers well inside `first_seconds`."""
+    return Budget(first_expansions=1_000_000, improve_expansions=1_000_000, symbolic_layers=100_000,
+                  seconds=first_seconds, improve_seconds=improve_seconds, hold_seconds=hold_seconds, stop=stop)
+
+
+# Counts only: in virtual time a seed reproduces a run on any machine.
+VIRTUAL_BUDGET = Budget(first_expansions=20_000, improve_expansions=5_000, symbolic_layers=500)
 
 
 class ControlCore:
     def __init__(self, compiled: CompiledModel, planner: Planner, clock: Callable[[], float] = time.monotonic,
-                 *, joint_time_limit: float = 3.0, single_time_limit: float = 10.0) -> None:
+                 *, budget: Budget | None = None) -> None:
         self.compiled = compiled
         self.model = compiled.model
         self.planner = planner
-        self.joint_time_limit = joint_time_limit
-        self.single_time_limit = single_time_limit
+        self.budget = budget or live_budget()
         self.engine = Engine(compiled)
         self.clock = clock
         self.state: State = compiled.initial()
@@ -89,7 +126,7 @@ class ControlCore:
         self.generation = 0
         self.planning = False
         self.need_plan_reason: str | None = "start"
-        self.errors: dict[str, tuple[str, float]] = {}  # operation -> (reason, since)
+        self.errors: dict[str, GoalError] = {}  # operation -> why it has no plan, and when it is retried
         self.events = ControlEvents()
         self.paused = False  # the operator holds every deliberate transition: plan steps and operation starts
         self.forced: dict[int, Force] = {}  # by state index
@@ -140,7 +177,7 @@ class ControlCore:
         goals = {}
         for name in self.executing():
             error = self.errors.get(name)
-            if error is not None and now - error[1] < ERROR_RETRY_S:
+            if error is not None and now < error.retry_at:
                 continue
             goals[name] = self.model.operation_by_name[name].goal
         return goals
@@ -215,8 +252,21 @@ class ControlCore:
         reason, self.need_plan_reason = self.need_plan_reason, None
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason)
 
+    def error_text(self, name: str) -> str:
+        """Why an operation has no plan and when it is tried again ("" when it has one)."""
+        error = self.errors.get(name)
+        if error is None:
+            return ""
+        kind = "unreachable" if error.proven else "no plan found in time"
+        wait = max(0.0, error.retry_at - self.clock())
+        return f"{kind}: {error.reason}; attempt {error.attempts}, retried in {wait:.0f} s"
+
+    def next_retry(self) -> float | None:
+        """When the first goal without a plan is tried again, if any."""
+        return min((e.retry_at for e in self.errors.values()), default=None)
+
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
-        result, note = solve_goals(self.planner, request, self.joint_time_limit, self.single_time_limit)
+        result, note = solve_goals(self.planner, request, self.budget)
         if note:
             self.events.log.append(note)
         return result
@@ -232,18 +282,59 @@ class ControlCore:
         if isinstance(result, NoPlan):
             self.events.no_plans += 1
             now = self.clock()
+            news = []
             for name in result.unreachable or tuple(request.goals):
-                self.errors[name] = (result.reason, now)
+                previous = self.errors.get(name)
+                attempts = 1 if previous is None else previous.attempts + 1
+                wait = min(RETRY_FIRST_S * 2 ** (attempts - 1), RETRY_MAX_S)
+                self.errors[name] = GoalError(result.reason, now if previous is None else previous.since,
+                                              now + wait, attempts, result.proven)
+                if previous is None or previous.reason != result.reason:
+                    news.append(name)
                 state_path = self.model.operation_by_name[name].state_path
                 self.state = self.compiled.with_values(self.state, {state_path: "error"})
-            self.events.log.append(f"no plan for {', '.join(result.unreachable)}: {result.reason}")
-            self._want_plan("planning without the unreachable goals")
+            if news:  # said once per goal and reason, not at every retry
+                kind = "unreachable" if result.proven else "not found in time"
+                self.events.log.append(f"no plan ({kind}) for {', '.join(news)}: {result.reason}")
+            self._want_plan("planning without the goals that have no plan")
             self.progress = None
             return
         self.events.plans += 1
+        for name in request.goals:
+            error = self.errors.pop(name, None)
+            if error is not None:
+                state_path = self.model.operation_by_name[name].state_path
+                if self.state[self.compiled.index[state_path]] == "error":
+                    self.state = self.compiled.with_values(self.state, {state_path: "executing"})
+                self.events.log.append(f"plan found for {name} after {error.attempts} attempt(s) without one")
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self.progress = PlanProgress(self.compiled, result)
+
+    def improve(self, request: PlanRequest, better: Plan) -> bool:
+        """A shorter plan for the request whose plan is under way (the portfolio kept searching): taken
+        only while it is still valid from the measured state, and shorter than what is left to do."""
+        progress = self.progress
+        if (progress is None or self.planning or request.generation != self.generation
+                or self.need_plan_reason is not None or set(progress.plan.goals) != set(better.goals)):
+            return False
+        left = sum(1 for _ in progress.pending())
+        skip = set(self.op_index.values())  # operation states move on beside any plan
+        here = tuple(v for i, v in enumerate(self.state) if i not in skip)
+        for j, state in enumerate(better.states[:-1]):
+            if len(better.steps) - j >= left:
+                break
+            if tuple(v for i, v in enumerate(state) if i not in skip) != here:
+                continue
+            goals = {name: self.model.operation_by_name[name].goal for name in better.goals}
+            kept = self.planner.revalidate(self.state, better.steps[j:], goals, self.disabled)
+            if kept is None:
+                continue
+            self.progress = PlanProgress(self.compiled, kept)
+            self.events.log.append(f"shorter plan taken: {len(kept.steps)} steps left instead of {left} "
+                                   f"({better.stats.method})")
+            return True
+        return False
 
     # --- the operator's interventions (controller/requests.py checks them first) ------------
     def withdraw(self, name: str, replan: str | None = None) -> None:

@@ -1,26 +1,45 @@
-"""The planner in a process of its own.
+"""The planner in a process of its own, answering anytime.
 
 A search is pure Python and holds the GIL: in a thread it would starve the tick loop
 and the state ingestion (hubs would look stale while the controller plans). The worker
-builds the same model, supervisor and planner once, keeps its heuristic caches warm
-across requests, and answers one request at a time.
+builds the same model, supervisor and planner once, keeps its caches warm across
+requests, and streams its answers to each request: the first valid plan as soon as the
+satisficing member has one, then each shorter plan the portfolio finds. A newer request
+stops the improvement of an older one at once.
 """
 
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
+import logging
 import multiprocessing
+import threading
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
 
-from .control import PlanRequest, solve_goals
+from .control import PlanRequest, anytime_answers, live_budget
 from .planner import NoPlan, Plan, Planner
 
-_planner: Planner | None = None
-_limits: tuple[float, float] = (3.0, 10.0)
+log = logging.getLogger(__name__)
 
 
-def _start(model_reference: str, joint_time_limit: float, single_time_limit: float) -> None:
-    global _planner, _limits
+@dataclass(frozen=True)
+class Limits:
+    first_seconds: float = 3.0  # the satisficing member's wall-clock limit (it answers well inside it)
+    improve_seconds: float = 10.0  # then A* and the symbolic member, unless a newer request comes
+    hold_seconds: float = 0.15  # a warm A* may replace the first answer by a shortest plan this soon
+
+
+@dataclass(frozen=True)
+class Answer:
+    generation: int
+    result: Plan | NoPlan | None  # None with `final`: nothing more for this request
+    note: str = ""
+    final: bool = False
+
+
+def _serve(requests: Connection, answers: Connection, model_reference: str, limits: Limits) -> None:
     from common.model.compiled import CompiledModel
     from common.stations import load_model
 
@@ -28,23 +47,100 @@ def _start(model_reference: str, joint_time_limit: float, single_time_limit: flo
 
     model = load_model(model_reference)
     supervisor = synthesize(model)
-    _planner = Planner(CompiledModel(model, supervisor.guards), supervisor.forbidden)
-    _limits = (joint_time_limit, single_time_limit)
-
-
-def _solve(request: PlanRequest) -> tuple[Plan | NoPlan | None, str]:
-    assert _planner is not None, "planner worker not started"
-    return solve_goals(_planner, request, *_limits)
+    planner = Planner(CompiledModel(model, supervisor.guards), supervisor.forbidden)
+    planner.relaxed(frozenset())  # the satisficing member's tables, before the first request
+    while True:
+        request: PlanRequest | None = requests.recv()
+        while request is not None and requests.poll():
+            request = requests.recv()  # only the newest request matters
+        if request is None:
+            return
+        budget = live_budget(limits.first_seconds, limits.improve_seconds, limits.hold_seconds, stop=requests.poll)
+        try:
+            for result, note in anytime_answers(planner, request, budget):
+                answers.send(Answer(request.generation, result, note))
+                if requests.poll():
+                    break
+        except Exception as exc:  # a planner bug must not stop the station: the controller reports it
+            log.exception("planner failed")
+            answers.send(Answer(request.generation, NoPlan(f"planner failed: {type(exc).__name__}: {exc}",
+                                                           tuple(request.goals))))
+        answers.send(Answer(request.generation, None, final=True))
 
 
 class PlannerProcess:
-    def __init__(self, model_reference: str, joint_time_limit: float = 3.0, single_time_limit: float = 10.0) -> None:
-        self.pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=_start,
-            initargs=(model_reference, joint_time_limit, single_time_limit))
+    """The controller's side: `answers(request)` yields the worker's answers to that request."""
 
-    async def solve(self, request: PlanRequest) -> tuple[Plan | NoPlan | None, str]:
-        return await asyncio.get_running_loop().run_in_executor(self.pool, _solve, request)
+    def __init__(self, model_reference: str, limits: Limits | None = None) -> None:
+        self.model_reference = model_reference
+        self.limits = limits or Limits()
+        self._queues: dict[int, asyncio.Queue[Answer]] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._process: multiprocessing.process.BaseProcess | None = None
+        self._send: Connection | None = None
+        self._start()
+
+    def _start(self) -> None:
+        context = multiprocessing.get_context("spawn")
+        worker_requests, self._send = context.Pipe(duplex=False)
+        receive, worker_answers = context.Pipe(duplex=False)
+        self._process = context.Process(target=_serve, name="planner", daemon=True,
+                                        args=(worker_requests, worker_answers, self.model_reference, self.limits))
+        self._process.start()
+        worker_requests.close()
+        worker_answers.close()
+        threading.Thread(target=self._read, args=(receive,), name="planner-answers", daemon=True).start()
+
+    def _read(self, receive: Connection) -> None:
+        while True:
+            try:
+                answer: Answer = receive.recv()
+            except (EOFError, OSError):
+                self._deliver_to_all("the planner process ended")
+                return
+            if self._loop is not None:
+                self._loop.call_soon_threadsafe(self._deliver, answer)
+
+    def _deliver(self, answer: Answer) -> None:
+        queue = self._queues.get(answer.generation)
+        if queue is not None:
+            queue.put_nowait(answer)
+
+    def _deliver_to_all(self, why: str) -> None:
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        for generation in list(self._queues):
+            answer = Answer(generation, NoPlan(why), final=True)
+            loop.call_soon_threadsafe(self._deliver, answer)
+
+    async def answers(self, request: PlanRequest) -> AsyncIterator[Answer]:
+        self._loop = asyncio.get_running_loop()
+        if self._process is None or not self._process.is_alive():
+            log.warning("planner process is not running: starting it again")
+            self._start()
+        queue: asyncio.Queue[Answer] = asyncio.Queue()
+        self._queues[request.generation] = queue
+        try:
+            assert self._send is not None
+            self._send.send(request)
+            while True:
+                answer = await queue.get()
+                if answer.result is not None or not answer.final:
+                    yield answer
+                if answer.final:
+                    return
+        finally:
+            self._queues.pop(request.generation, None)
 
     def close(self) -> None:
-        self.pool.shutdown(wait=False, cancel_futures=True)
+        try:
+            if self._send is not None:
+                self._send.send(None)
+                self._send.close()
+        except OSError:
+            pass
+        if self._process is not None:
+            self._process.join(timeout=2.0)
+            if self._process.is_alive():
+                self._process.kill()

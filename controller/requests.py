@@ -150,8 +150,7 @@ class Requests:
         if state == "executing":
             return refused(f"{name} is already executing")
         if state == "error":
-            reason = self.core.errors.get(name, ("", 0.0))[0]
-            return refused(f"{name} is in error and retried ({reason}): stop or reset it first")
+            return refused(f"{name} is in error ({self.core.error_text(name)}): stop or reset it first")
         operation = self.model.operation_by_name[name]
         waiting = unmet(operation.pre, self.compiled.unpack(self.core.state))
         if name in self.core.requested:

@@ -17,17 +17,17 @@ import gc
 import logging
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from common.bus import Bus, Keys, Sample
 from common.config import StationConfig
 from common.ctl import LoopStats, OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
-from common.model.compiled import CompiledModel
+from common.model.compiled import CompiledModel, State
 
-from .control import ControlCore
-from .planner import NoPlan, Planner
+from .control import ControlCore, PlanRequest
+from .planner import NoPlan, Plan, Planner, PlanStep
 from .planworker import PlannerProcess
 from .requests import Requests
 from .state import StateStore
@@ -105,7 +105,9 @@ class ControllerService:
         self._status_due = True
         self._last_persisted: dict[int, Value] = {}
         self._mismatch_logged: set[str] = set()
-        self._planning: asyncio.Task[None] | None = None
+        self._planning: asyncio.Task[None] | None = None  # until the request under way has its first answer
+        self._solving: set[asyncio.Task[None]] = set()  # requests whose answers are still coming
+        self._own_guards: dict[str, Callable[[State], bool]] = {}
         # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
@@ -171,6 +173,8 @@ class ControllerService:
                     await task
             if self._planning is not None:
                 self._planning.cancel()
+            for task in list(self._solving):
+                task.cancel()
             if self.planner_process is not None:
                 self.planner_process.close()
             self.store.close()
@@ -305,29 +309,71 @@ class ControllerService:
         request = self.core.plan_request()
         if request is None:
             return
+        first_answered = asyncio.Event()
 
         async def solve() -> None:
             try:
                 if self.planner_process is not None:
-                    result, note = await self.planner_process.solve(request)
-                    if note:
-                        self.core.events.log.append(note)
+                    async for answer in self.planner_process.answers(request):
+                        if answer.note:
+                            self.core.events.log.append(answer.note)
+                        if not first_answered.is_set():
+                            self._adopt(request, answer.result)
+                            first_answered.set()
+                        elif isinstance(answer.result, Plan) and self.core.improve(request, answer.result):
+                            log.info("shorter plan taken: %d steps (%s)", len(answer.result.steps),
+                                     answer.result.stats.method)
+                            self._status_due = True
+                            self._dirty.set()
                 else:
-                    result = await asyncio.to_thread(self.core.solve, request)
+                    self._adopt(request, await asyncio.to_thread(self.core.solve, request))
             except Exception as exc:  # a planner bug must not stop the station: report and retry
                 log.exception("planner failed")
-                result = NoPlan(f"planner failed: {type(exc).__name__}: {exc}", tuple(request.goals))
-            self.core.adopt(request, result)
-            if isinstance(result, NoPlan):
-                log.warning("no plan: %s", result)
-            elif result is not None:
-                log.info("plan: %d steps for %d goals in %.1f ms (%s)", len(result.steps), len(request.goals),
-                         result.stats.seconds * 1000, request.reason)
+                if not first_answered.is_set():
+                    self._adopt(request, NoPlan(f"planner failed: {type(exc).__name__}: {exc}",
+                                                tuple(request.goals)))
+            finally:
+                first_answered.set()
+
+        async def first() -> None:
+            # A newer request may go out as soon as this one has its first answer; the worker then
+            # drops the improvement of this one.
+            await first_answered.wait()
             self._planning = None
-            self._status_due = True
             self._dirty.set()
 
-        self._planning = asyncio.create_task(solve(), name="plan")
+        task = asyncio.create_task(solve(), name=f"plan-{request.generation}")
+        self._solving.add(task)
+        task.add_done_callback(self._solving.discard)
+        self._planning = asyncio.create_task(first(), name="plan")
+
+    def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:
+        said = len(self.core.events.log)
+        self.core.adopt(request, result)
+        for line in self.core.events.log[said:]:
+            if line.startswith("no plan"):  # once per goal and reason, not at every retry
+                log.warning("%s", line)
+        if isinstance(result, Plan):
+            stats = result.stats
+            log.info("plan: %d steps for %d goals in %.1f ms (%s%s; %s)", len(result.steps), len(request.goals),
+                     stats.seconds * 1000, stats.method, ", shortest" if stats.minimal else "", request.reason)
+        self._status_due = True
+        self._dirty.set()
+
+    def _waits_for(self, step: PlanStep) -> str:
+        """What a pending step waits for: its own guard, or the specifications whose synthesized guard
+        holds it back although its own guard holds (the full synthesized guard is `hubctl plan --guards`)."""
+        t = self.compiled.by_name[step.transition]
+        state = self.core.state
+        if step.held_by and t.guard(state) is False and self._own_guard(t.name)(state):
+            return f"held back by specification {', '.join(step.held_by)}"
+        return step.guard
+
+    def _own_guard(self, name: str) -> Callable[[State], bool]:
+        test = self._own_guards.get(name)
+        if test is None:
+            test = self._own_guards[name] = self.compiled.predicate(self.compiled.by_name[name].source.guard)
+        return test
 
     # --- status out -----------------------------------------------------------------------
     async def _publish_status_loop(self, stop: asyncio.Event) -> None:
@@ -346,7 +392,7 @@ class ControllerService:
         core = self.core
         now = time.monotonic()
         operations = [
-            OperationInfo(op.name, core.op_state(op.name), core.errors.get(op.name, ("", 0.0))[0],
+            OperationInfo(op.name, core.op_state(op.name), core.error_text(op.name),
                           self.op_since.get(op.name, self.started) - self.started)
             for op in self.model.operations
         ]
@@ -361,7 +407,9 @@ class ControllerService:
             goals = list(progress.plan.goals)
             for j, step in enumerate(progress.plan.steps):
                 resource = step.transition.split(".", 1)[0]
-                plan.append(PlanStepInfo(resource, step.transition, step.kind.value, step.guard, j in progress.done))
+                done = j in progress.done
+                plan.append(PlanStepInfo(resource, step.transition, step.kind.value,
+                                         step.guard if done else self._waits_for(step), done))
         events = core.events
         return StatusMessage(
             station=self.config.station.name, controller=self.controller_id, time=time.time(),

@@ -16,6 +16,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from common.model import Model, Predicate, Specification, TransitionKind, all_of, any_of, apply_all
+from common.model.compiled import GuardSet
 from common.model.rewrite import simplify
 
 from .cubes import Cube, before, conjoin, holds, implies, merge, prune, to_cubes, to_predicate
@@ -36,7 +37,7 @@ class SynthesisError(ValueError):
 
 @dataclass
 class Supervisor:
-    guards: dict[str, Predicate] = field(default_factory=dict)  # deliberate transition -> extra guard
+    guards: GuardSet = field(default_factory=GuardSet)  # deliberate transition -> extra guard (and its specs)
     bad: dict[str, list[Cube]] = field(default_factory=dict)  # specification -> its bad states
     forbidden: Predicate | None = None  # disjunction of the specifications, for the planner
     converged: dict[str, bool] = field(default_factory=dict)
@@ -95,14 +96,17 @@ def synthesize(model: Model) -> Supervisor:
             continue
         written = t.written()
         extra: list[Predicate] = []
+        specs: list[str] = []
         for spec in model.specifications:
             bad = supervisor.bad[spec.name]
             into_bad = merge([pre for cube in bad if not written.isdisjoint(cube)
                               for pre in before(cube, t.actions, domains)], domains)
             if into_bad:
                 extra.append(simplify(~to_predicate(into_bad, domains)))
+                specs.append(spec.name)
         if extra:
             supervisor.guards[t.name] = simplify(all_of(*extra))
+            supervisor.guards.specs[t.name] = tuple(specs)
     supervisor.forbidden = simplify(any_of(*(s.forbidden for s in model.specifications)))
     return supervisor
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from common.model import Model
 from common.model.compiled import CompiledModel
-from controller.control import ERROR_RETRY_S, ControlCore
-from controller.planner import NoPlan, Planner
+from controller.control import VIRTUAL_BUDGET, ControlCore
+from controller.planner import Budget, Planner
 from controller.synthesis import synthesize
 from hubs.emulator import EffectEmulator
 
@@ -35,6 +35,7 @@ class RunSummary:
 
 
 Reporter = Callable[[str], None]
+MAX_TICKS_AT_ONCE = 100  # ticks at one instant of virtual time before the devices get their turn
 
 
 def run_in_process(
@@ -46,13 +47,14 @@ def run_in_process(
     realtime: bool = False,
     time_limit: float = 3600.0,
     report: Reporter | None = None,
+    budget: Budget = VIRTUAL_BUDGET,
 ) -> RunSummary:
     say = report or (lambda _line: None)
     guards = synthesize(model)
     compiled = CompiledModel(model, guards.guards)
     planner = Planner(compiled, guards.forbidden)
     now = 0.0
-    core = ControlCore(compiled, planner, clock=lambda: now)
+    core = ControlCore(compiled, planner, clock=lambda: now, budget=budget)
     core.request(*(op.name for op in model.operations))
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure)
     deliberate = {t.name for t in compiled.deliberate}
@@ -60,7 +62,9 @@ def run_in_process(
     start_wall = time.perf_counter()
     planning = 0.0
     reason = ""
+    quiet_ticks = 0
     while True:
+        progress_before, state_before = core.progress, core.state
         result = core.tick()
         for name in result.started:
             say(f"{now:7.1f}s  start  {name}")
@@ -72,24 +76,31 @@ def run_in_process(
             say(f"{now:7.1f}s  done   {name}  [{done}/{total}]")
         if core.all_finished():
             break
+        # A tick that changed anything (a step fired, a plan kept from a new state) may enable the next
+        # step at once: tick again before time moves on, as the live controller's next tick would.
+        if (core.progress is not progress_before or core.state != state_before) and quiet_ticks < MAX_TICKS_AT_ONCE:
+            quiet_ticks += 1
+            continue
+        quiet_ticks = 0
         request = core.plan_request()
         if request is not None:
             began = time.perf_counter()
             answer = core.solve(request)
             planning += time.perf_counter() - began
+            said = len(core.events.log)
             core.adopt(request, answer)
-            if isinstance(answer, NoPlan):
-                say(f"{now:7.1f}s  no plan for {', '.join(answer.unreachable) or 'the goals'}: {answer.reason}")
+            for line in core.events.log[said:]:
+                if line.startswith(("no plan", "plan found for")):  # once per goal and reason, not per retry
+                    say(f"{now:7.1f}s  {line}")
             continue
         changes = emulator.step(compiled.unpack(core.state), now)
         if changes:
             core.ingest(changes)
             continue
         due = emulator.next_due()
-        if due is None and core.errors:
-            due = min(since for _, since in core.errors.values()) + ERROR_RETRY_S  # wait for the retry
-            if due <= now:
-                due = now + ERROR_RETRY_S
+        retry = core.next_retry()
+        if retry is not None and retry > now:
+            due = retry if due is None else min(due, retry)  # a goal without a plan is tried again then
         if due is None:
             waiting = [n for n in core.executing()]
             reason = f"stuck: nothing can happen; executing: {', '.join(waiting) or 'none'}"

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from common.model import Domain, Model, Phase, Resource, ability, command, measured, operation
 from common.model.compiled import CompiledModel
-from controller.control import ControlCore
-from controller.planner import Planner
+from controller.control import ControlCore, PlanRequest
+from controller.planner import NoPlan, Plan, Planner
 
 
 def lamp_beside_a_gauge() -> Model:
@@ -45,3 +45,55 @@ def test_a_change_that_blocks_the_next_step_asks_for_a_new_plan() -> None:
     core.tick()
     assert core.progress is None and core.need_plan_reason is not None and "g.level_m" in core.need_plan_reason
     assert "a.switch.enabled" not in core.tick().fired
+
+
+def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() -> None:
+    compiled = CompiledModel(lamp_beside_a_gauge())
+    now = [0.0]
+    core = ControlCore(compiled, Planner(compiled), clock=lambda: now[0])
+    core.request("LampOn")
+    core.ingest({"g.level_m": "high"})  # the switch is forbidden for as long as the gauge reads high
+    core.tick()
+    waits = []
+    for _ in range(4):
+        request = core.plan_request()
+        assert request is not None and set(request.goals) == {"LampOn"}
+        result = core.solve(request)
+        assert isinstance(result, NoPlan) and result.proven
+        core.adopt(request, result)
+        assert core.op_state("LampOn") == "error"
+        error = core.errors["LampOn"]
+        waits.append(error.retry_at - now[0])
+        empty = core.plan_request()  # planned again without the goal, until its retry is due
+        assert empty is not None and not empty.goals
+        core.adopt(empty, core.solve(empty))
+        core.tick()
+        assert core.plan_request() is None
+        now[0] = error.retry_at
+        core.tick()
+    assert waits == [2.0, 4.0, 8.0, 16.0]
+    said = [line for line in core.events.log if line.startswith("no plan")]
+    assert len(said) == 1 and "unreachable" in said[0] and "LampOn" in said[0]
+    assert "attempt 4" in core.error_text("LampOn")
+    core.ingest({"g.level_m": "low"})
+    core.tick()
+    request = core.plan_request()
+    assert request is not None
+    core.adopt(request, core.solve(request))
+    assert core.op_state("LampOn") == "executing" and "LampOn" not in core.errors
+    assert any(line.startswith("plan found for LampOn after 4 attempt") for line in core.events.log)
+
+
+def test_a_shorter_plan_is_taken_only_while_valid_from_the_measured_state() -> None:
+    core = started_core()
+    plan = core.progress.plan  # type: ignore[union-attr]
+    request = PlanRequest(core.generation, plan.states[0], {"LampOn": lamp_beside_a_gauge().operation_by_name[
+        "LampOn"].goal}, frozenset())
+    # Not shorter than what is left: refused.
+    assert not core.improve(request, plan)
+    # A "better" plan from a state the station is not in: refused.
+    elsewhere = Plan(plan.steps[1:], plan.states[1:], plan.goals, plan.stats)
+    assert not core.improve(request, elsewhere) or core.state == plan.states[1]
+    # An answer to an older request: refused.
+    stale = PlanRequest(core.generation - 1, request.start, request.goals, frozenset())
+    assert not core.improve(stale, plan)

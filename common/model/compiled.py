@@ -76,6 +76,16 @@ def compile_assignments(
     return namespace["apply"]  # type: ignore[return-value]
 
 
+class GuardSet(dict[str, Predicate]):
+    """Extra guards by transition name, and which specifications each comes from (for explanations:
+    a person reads "held back by spec X", not kilobytes of synthesized predicate)."""
+
+    def __init__(self, guards: Mapping[str, Predicate] | None = None,
+                 specs: Mapping[str, tuple[str, ...]] | None = None) -> None:
+        super().__init__(guards or {})
+        self.specs: dict[str, tuple[str, ...]] = dict(specs or {})
+
+
 @dataclass(eq=False)
 class CompiledTransition:
     number: int
@@ -104,6 +114,8 @@ class CompiledModel:
         self.index: dict[str, int] = {p: i for i, p in enumerate(self.paths)}
         self.domains = tuple(model.variables[p].domain for p in self.paths)
         self.extra_guards = dict(extra_guards or {})
+        self.guard_specs: dict[str, tuple[str, ...]] = (
+            dict(extra_guards.specs) if isinstance(extra_guards, GuardSet) else {})
         self.transitions: tuple[CompiledTransition, ...] = tuple(
             self._compile(n, t) for n, t in enumerate(model.transitions)
         )

@@ -11,9 +11,10 @@ from .check import check_operations
 from .heuristics import GoalHeuristic, HeuristicOptions
 from .planner import Planner
 from .plans import NoPlan, Plan, PlanStats, PlanStep
+from .portfolio import Budget
 from .validate import PlanInvalid, validate_plan
 
 __all__ = [
-    "GoalHeuristic", "HeuristicOptions", "NoPlan", "Plan", "PlanInvalid", "PlanStats", "PlanStep", "Planner",
+    "Budget", "GoalHeuristic", "HeuristicOptions", "NoPlan", "Plan", "PlanInvalid", "PlanStats", "PlanStep", "Planner",
     "breadth_first", "check_operations", "validate_plan",
 ]

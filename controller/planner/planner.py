@@ -10,12 +10,10 @@ simulation (`validate.check_plan`) before it is returned.
 
 from __future__ import annotations
 
-import itertools
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 from common.model import Predicate, all_of
 from common.model.compiled import CompiledModel, State
@@ -23,19 +21,14 @@ from common.model.compiled import CompiledModel, State
 from .abstraction import Abstraction
 from .heuristics import GoalHeuristic, HeuristicOptions
 from .plans import NoPlan, Plan, PlanStats, PlanStep
-from .search import astar
+from .portfolio import Budget, _Run
+from .relaxed import RelaxedModel
 from .steps import RaceCheck, StepSystem, stable_goal
 from .validate import PlanInvalid, check_plan, plan_from_moves
 
 MAX_SUBSET = 3  # "no plan" looks for an unreachable subset of at most this many goals, smallest first
 HEURISTIC_CACHE = 128
 ABSTRACTION_CACHE = 96
-
-
-@dataclass
-class _Attempt:
-    result: Plan | NoPlan
-    proven: bool  # NoPlan and shown unreachable (not a time-out)
 
 
 def _short(predicate: Predicate, limit: int = 160) -> str:
@@ -69,6 +62,7 @@ class Planner:
         # Built once per set of disabled resources (20 ms on the reference station), shared by the search
         # and `revalidate`; a dict read or write is atomic, so the lock-free `revalidate` may use it.
         self._races: dict[frozenset[str], RaceCheck] = {}
+        self._relaxed: dict[frozenset[str], RelaxedModel] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
 
@@ -84,6 +78,28 @@ class Planner:
         if system is None:
             system = self._systems[disabled] = StepSystem(self.compiled, disabled, self._race(disabled))
         return system
+
+    def relaxed(self, disabled: frozenset[str]) -> RelaxedModel:
+        found = self._relaxed.get(disabled)
+        if found is None:
+            found = self._relaxed[disabled] = RelaxedModel(self._system(disabled))
+        return found
+
+    def symbolic(self, disabled: frozenset[str]) -> None:
+        """The symbolic member for this set of disabled resources (None: not available)."""
+        return None
+
+    def goal_test(self, goal: Predicate) -> Callable[[State], bool]:
+        is_goal = self._predicates.get(goal)
+        if is_goal is None:
+            if len(self._predicates) > HEURISTIC_CACHE:
+                self._predicates.clear()
+            is_goal = self._predicates[goal] = self.compiled.predicate(goal)
+        return is_goal
+
+    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str]) -> bool:
+        """The A* tables for these goals are built (a search with them costs no cold build)."""
+        return (disabled, goals) in self._heuristics
 
     def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset()) -> GoalHeuristic:
         key = (disabled, goals)
@@ -111,6 +127,7 @@ class Planner:
     def clear_cache(self) -> None:
         with self._lock:
             self._systems.clear()
+            self._relaxed.clear()
             self._abstractions.clear()
             self._heuristics.clear()
 
@@ -120,19 +137,31 @@ class Planner:
         start: State,
         goals: Mapping[str, Predicate],
         disabled: frozenset[str] = frozenset(),
-        time_limit: float = 10.0,
+        time_limit: float | None = 10.0,
+        *,
+        budget: Budget | None = None,
     ) -> Plan | NoPlan:
-        """A shortest plan from `start` to a state where every goal holds, or why there is none."""
+        """The best plan the portfolio finds within the budget (a shortest one where it can show it), or why
+        there is none. `time_limit` (seconds) is shorthand for `Budget(seconds=time_limit)`."""
+        *_, last = self.plan_anytime(start, goals, disabled, budget or Budget(seconds=time_limit))
+        return last
+
+    def plan_anytime(
+        self,
+        start: State,
+        goals: Mapping[str, Predicate],
+        disabled: frozenset[str] = frozenset(),
+        budget: Budget | None = None,
+    ) -> Iterator[Plan | NoPlan]:
+        """The portfolio: first any valid plan (satisficing search), then strictly shorter ones (A*, then the
+        symbolic member), the last one marked minimal when that was shown; or a single NoPlan.
+
+        Every plan is checked by simulation with the engine's semantics before it is yielded.
+        """
+        budget = budget or Budget()
         with self._lock:
-            began = time.perf_counter()
-            deadline = began + time_limit
-            names = tuple(goals)
-            attempt = self._attempt(start, names, goals, frozenset(disabled), deadline, began)
-            if isinstance(attempt.result, Plan) or not attempt.proven:
-                return attempt.result
-            unreachable = self._smallest_unreachable(start, names, goals, frozenset(disabled), deadline)
-            result = attempt.result
-            return NoPlan(result.reason, unreachable, result.stats)
+            run = _Run(self, start, tuple(goals), goals, frozenset(disabled), budget)
+            yield from run.answers()
 
     def revalidate(
         self,
@@ -155,76 +184,3 @@ class Planner:
         except PlanInvalid:
             return None
         return Plan(plan.steps, plan.states, plan.goals, PlanStats("revalidated", time.perf_counter() - began))
-
-    def _attempt(
-        self,
-        start: State,
-        names: tuple[str, ...],
-        goals: Mapping[str, Predicate],
-        disabled: frozenset[str],
-        deadline: float,
-        began: float,
-    ) -> _Attempt:
-        compiled = self.compiled
-        goal = all_of(*(goals[n] for n in names))
-        is_goal = self._predicates.get(goal)
-        if is_goal is None:
-            if len(self._predicates) > HEURISTIC_CACHE:
-                self._predicates.clear()
-            is_goal = self._predicates[goal] = compiled.predicate(goal)
-
-        def stats(method: str, expanded: int = 0, generated: int = 0, build: float = 0.0) -> PlanStats:
-            return PlanStats(method, time.perf_counter() - began, expanded, generated, build)
-
-        if self._is_forbidden is not None and self._is_forbidden(start):
-            return _Attempt(NoPlan(f"the start state is forbidden ({_short(self.forbidden)})",  # type: ignore[arg-type]
-                                   names, stats("none")), False)
-        is_goal = stable_goal(compiled, is_goal, disabled)
-        if is_goal(start):
-            return _Attempt(Plan((), (start,), names, stats("trivial")), False)
-        build_began = time.perf_counter()
-        heuristic = self.heuristic(tuple(goals[n] for n in names), disabled)
-        heuristic.prepare(start)  # tables over the abstract states reachable from here (cached if unchanged)
-        build = time.perf_counter() - build_began
-        system = self._system(disabled)
-        found = astar(system, start, is_goal, self._is_forbidden, heuristic, deadline)
-        if found.moves is not None:
-            plan = plan_from_moves(compiled, start, found.moves, names,
-                                   stats("astar", found.expanded, found.generated, build), self._steps)
-            try:
-                check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals", system.race)
-            except PlanInvalid as exc:  # a planner bug: never hand such a plan to the engine
-                return _Attempt(NoPlan(f"internal error, the plan failed validation: {exc}", (),
-                                       plan.stats), False)
-            return _Attempt(plan, False)
-        final = stats("astar", found.expanded, found.generated, build)
-        if found.timed_out:
-            return _Attempt(NoPlan(f"no plan found within the time limit ({found.expanded} states expanded)", (),
-                                   final), False)
-        if found.reason == "heuristic":
-            reason = f"{', '.join(names)}: {heuristic.why_unreachable(start)}"
-        elif found.reason == "exhausted":
-            reason = f"{', '.join(names)}: unreachable ({found.expanded} reachable states explored)"
-        else:
-            reason = f"{', '.join(names)}: {found.reason}"
-        if disabled:
-            reason += f" (disabled resources left out: {', '.join(sorted(disabled))})"
-        return _Attempt(NoPlan(reason, names, final), True)
-
-    def _smallest_unreachable(
-        self,
-        start: State,
-        names: tuple[str, ...],
-        goals: Mapping[str, Predicate],
-        disabled: frozenset[str],
-        deadline: float,
-    ) -> tuple[str, ...]:
-        """Singletons first, then pairs, ...: the first subset shown unreachable (bounded in size and time)."""
-        for size in range(1, min(len(names), self.max_subset + 1)):
-            for subset in itertools.combinations(names, size):
-                if time.perf_counter() > deadline:
-                    return names
-                attempt = self._attempt(start, subset, goals, disabled, deadline, time.perf_counter())
-                if attempt.proven:
-                    return subset
-        return names

@@ -38,9 +38,18 @@ def astar(
     goal: StateTest,
     forbidden: StateTest | None,
     heuristic: Callable[[State], int],
-    deadline: float,
+    deadline: float | None,
+    *,
+    bound: int = INF,
+    max_expansions: int | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> SearchResult:
-    """A shortest move sequence from `start` (neither forbidden nor a goal) to a goal state."""
+    """A shortest move sequence from `start` (neither forbidden nor a goal) to a goal state.
+
+    Only plans shorter than `bound` count (an incumbent from another member): "exhausted"
+    then means no plan shorter than the bound exists. `max_expansions` bounds the work
+    deterministically; `deadline` (perf_counter) and `stop` (a newer request) end it early.
+    """
     prefix: list[Move] = []
     root = start
     if system.first_automatic(start) is not None:
@@ -58,13 +67,16 @@ def astar(
     h0 = heuristic(root)
     if h0 >= INF:
         return SearchResult(None, reason="heuristic")
+    if len(prefix) + h0 >= bound:
+        return SearchResult(None, reason="exhausted")
     best_g: dict[State, int] = {root: 0}
     parent: dict[State, tuple[State, tuple[Move, ...]] | None] = {root: None}
     h_of: dict[State, int] = {root: h0}
     counter = 0
     heap: list[tuple[int, int, int, State, tuple[State, tuple[Move, ...]] | None]] = [(h0, 0, 0, root, None)]
-    best_goal = INF
+    best_goal = bound - len(prefix) if bound < INF else INF  # costs below count from `root`
     expanded = generated = 0
+    limit = INF if max_expansions is None else max_expansions
     successors = system.successors
     push, pop = heapq.heappush, heapq.heappop
     while heap:
@@ -80,7 +92,8 @@ def astar(
         if g > best_g[state]:
             continue  # a stale entry: reached more cheaply since
         expanded += 1
-        if expanded % TIME_CHECK_EVERY == 0 and time.perf_counter() > deadline:
+        if expanded > limit or (expanded % TIME_CHECK_EVERY == 0 and (
+                (deadline is not None and time.perf_counter() > deadline) or (stop is not None and stop()))):
             return SearchResult(None, expanded, generated, timed_out=True)
         for succ in successors(state, goal, forbidden):
             generated += 1

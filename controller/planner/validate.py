@@ -22,7 +22,10 @@ class PlanInvalid(ValueError):
 
 def plan_step(compiled: CompiledModel, t: CompiledTransition, outcome: int) -> PlanStep:
     actions = "; ".join(str(a) for a in t.source.outcomes[outcome])
-    return PlanStep(t.name, t.kind, outcome, str(compiled.guard_of(t.source)), actions)
+    extra = compiled.extra_guards.get(t.name)
+    return PlanStep(t.name, t.kind, outcome, str(t.source.guard), actions,
+                    compiled.guard_specs.get(t.name, ("synthesized",) if extra is not None else ()),
+                    "" if extra is None else str(extra))
 
 
 def plan_from_moves(

@@ -1,20 +1,22 @@
-"""Planner benchmark: `python tests/bench/bench_planner.py [--quick]`.
+"""Planner benchmark: `python tests/bench/bench_planner.py [--quick] [--runs N]`.
 
-Prints three tables:
+Prints, side by side in one run:
 
-1. the synthetic N-bolt station (`common.stations.synthetic`): A* cold (a new Planner:
-   projections and distance tables built) and warm (the same Planner again: what the
-   controller sees when it replans), plan length, states expanded and generated, the
-   heuristic build time, growth against the previous N, and the plain breadth-first
-   baseline in the same run (time, length, states; it gives up at a state limit);
-2. the reference station (`common.stations.engine_assembly`, with the synthesized
-   supervisor): one operation's plan (TightenBolt7 with the robot holding the
-   oil-filter tool at home) and all 24 bolts at once, from the state after the bolts
-   are placed and from the state after the ladder frame is placed;
-3. (not with --quick) the heuristic's parts switched off one by one, to show what each buys.
+1. a row per planner member on each case: the portfolio's first plan (satisficing,
+   what the controller gets first) and its final plan (after A* tried to improve it,
+   marked minimal when shown), A* alone, the symbolic member alone, and breadth-first
+   (given up at a state limit). Cases: the reference station (`engine_assembly`, with
+   its synthesized supervisor) — `TightenBolt7` with the filter tool at home, 24 bolts
+   from the frame placed, the `ParkNutrunner + AttachFilterTool + 3 filters + 2 pipes`
+   goal set, `RobotHome` from the state where the old planner stalled
+   (`robothome_state.toml`) — each other station's goal set at its start, and the
+   synthetic N-bolt station for N = 4 … 96. Cold: a new Planner (every table built);
+   warm: the same Planner asked again (what the controller sees when it replans).
+2. (with --runs N) the goal sets the reference station asks during N in-process runs
+   (seeds 1..N): time to the first valid plan (p50, p99, max) and how often the first
+   plan was already a shortest one where the final one was shown minimal.
 
-Medians over repeated warm runs; nothing is asserted. The load average is printed:
-timings on a shared machine vary.
+Nothing is asserted: timings on a shared machine vary; the load average is printed.
 """
 
 from __future__ import annotations
@@ -25,29 +27,27 @@ import statistics
 import sys
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.model import Predicate, all_of, parse_predicate
+from common.model import Model, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
-from common.stations import engine_assembly, synthetic
-from controller.planner import HeuristicOptions, NoPlan, Plan, Planner, breadth_first
+from common.stations import engine_assembly, load_model, synthetic
+from controller.control import VIRTUAL_BUDGET
+from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
+from controller.planner.search import astar
+from controller.planner.steps import stable_goal
 from controller.synthesis import synthesize
+from deploy.statefile import load_state
 
-
-def timed(call: Callable[[], Plan | NoPlan]) -> tuple[float, Plan | NoPlan]:
-    began = time.perf_counter()
-    result = call()
-    return time.perf_counter() - began, result
+HERE = Path(__file__).resolve().parent
+OTHER_STATIONS = ("common.stations.machine_tending:build_model", "common.stations.shared_workspace:build_model")
 
 
 def ms(seconds: float) -> str:
     return f"{seconds * 1000:.1f} ms" if seconds < 1 else f"{seconds:.2f} s"
-
-
-def length(result: Plan | NoPlan) -> str:
-    return str(len(result.steps)) if isinstance(result, Plan) else "none"
 
 
 def table(title: str, header: list[str], rows: list[list[str]]) -> None:
@@ -57,158 +57,254 @@ def table(title: str, header: list[str], rows: list[list[str]]) -> None:
     print("  " + "  ".join("-" * w for w in widths))
     for row in rows:
         print("  " + "  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)))
+    sys.stdout.flush()
 
 
-# --- 1. synthetic --------------------------------------------------------------------------
-def bench_synthetic(sizes: list[int], repeats: int, bfs_sizes: set[int], bfs_limit: int) -> None:
+@dataclass
+class Case:
+    name: str
+    compiled: CompiledModel
+    forbidden: Predicate | None
+    start: State
+    goals: Mapping[str, Predicate]
+
+    def planner(self) -> Planner:
+        return Planner(self.compiled, self.forbidden)
+
+
+@dataclass
+class Outcome:
+    seconds: float
+    length: str
+    minimal: str
+    expanded: str
+
+
+def outcome(seconds: float, result: Plan | NoPlan | None, expanded: int | None = None) -> Outcome:
+    if isinstance(result, Plan):
+        return Outcome(seconds, str(len(result.steps)), "yes" if result.stats.minimal else "-",
+                       str(result.stats.expanded if expanded is None else expanded))
+    return Outcome(seconds, "none", "-", "-" if expanded is None else str(expanded))
+
+
+# --- members ---------------------------------------------------------------------------------
+def first_plan(planner: Planner, case: Case, limit: float) -> Outcome:
+    began = time.perf_counter()
+    first = next(iter(planner.plan_anytime(case.start, case.goals, budget=Budget(
+        first_expansions=10**9, improve_expansions=0, seconds=limit))))
+    return outcome(time.perf_counter() - began, first)
+
+
+def final_plan(planner: Planner, case: Case, limit: float) -> Outcome:
+    budget = Budget(first_expansions=10**9, improve_expansions=10**9, seconds=limit, improve_seconds=limit)
+    began = time.perf_counter()
+    result = planner.plan(case.start, case.goals, budget=budget)
+    return outcome(time.perf_counter() - began, result)
+
+
+def astar_alone(planner: Planner, case: Case, limit: float) -> Outcome:
+    began = time.perf_counter()
+    goal = all_of(*case.goals.values())
+    is_goal = stable_goal(case.compiled, case.compiled.predicate(goal), frozenset())
+    heuristic = planner.heuristic(tuple(case.goals.values()))
+    heuristic.prepare(case.start)
+    found = astar(planner._system(frozenset()), case.start, is_goal, planner._is_forbidden, heuristic,
+                  time.perf_counter() + limit)
+    seconds = time.perf_counter() - began
+    if found.moves is None:
+        return Outcome(seconds, "none" if not found.timed_out else f">{limit:.0f} s", "-", str(found.expanded))
+    return Outcome(seconds, str(len(found.moves)), "yes", str(found.expanded))
+
+
+def symbolic_alone(planner: Planner, case: Case, limit: float) -> Outcome:
+    began = time.perf_counter()
+    member = planner.symbolic(frozenset())
+    if member is None:
+        return Outcome(0.0, "n/a", "-", "-")
+    found = member.search(case.start, all_of(*case.goals.values()), deadline=time.perf_counter() + limit)
+    seconds = time.perf_counter() - began
+    if found.moves is None:
+        return Outcome(seconds, f">{limit:.0f} s" if found.timed_out else "none", "-", f"{found.layers} layers")
+    return Outcome(seconds, str(len(found.moves)), "yes", f"{found.layers} layers")
+
+
+def bfs_alone(case: Case, limit_states: int) -> Outcome:
+    began = time.perf_counter()
+    result = breadth_first(case.compiled, case.start, all_of(*case.goals.values()), case.forbidden,
+                           limit_states=limit_states)
+    seconds = time.perf_counter() - began
+    if isinstance(result, NoPlan):
+        return Outcome(seconds, f"gave up ({limit_states} states)", "-", str(result.stats.generated))
+    return Outcome(seconds, str(len(result.steps)), "yes", str(result.stats.generated))
+
+
+MEMBERS: list[tuple[str, Callable[[Planner, Case, float], Outcome]]] = [
+    ("portfolio: first plan", first_plan),
+    ("portfolio: final plan", final_plan),
+    ("A* alone", astar_alone),
+    ("symbolic alone", symbolic_alone),
+]
+
+
+def bench_case(case: Case, limit: float, bfs_limit: int, repeats: int) -> list[list[str]]:
     rows = []
-    previous: float | None = None
+    for member, run in MEMBERS:
+        cold = run(case.planner(), case, limit)
+        planner = case.planner()
+        run(planner, case, limit)
+        warm = [run(planner, case, limit) for _ in range(repeats)]
+        warm_time = statistics.median(w.seconds for w in warm)
+        rows.append([case.name, member, ms(cold.seconds), ms(warm_time), cold.length, cold.minimal, cold.expanded])
+        print(f"  {case.name} / {member}: {cold.length} steps, cold {ms(cold.seconds)}", file=sys.stderr)
+    if bfs_limit:
+        b = bfs_alone(case, bfs_limit)
+        rows.append([case.name, "breadth-first", ms(b.seconds), "-", b.length, b.minimal, b.expanded])
+    return rows
+
+
+# --- cases -----------------------------------------------------------------------------------
+def compiled_of(model: Model) -> tuple[CompiledModel, Predicate | None]:
+    supervisor = synthesize(model)
+    return CompiledModel(model, supervisor.guards), supervisor.forbidden
+
+
+def walk(model: Model, compiled: CompiledModel, planner: Planner, names: list[str]) -> State:
+    """Run operations one after another (one plan each, as the engine would) and return the state."""
+    state = compiled.initial()
+    for name in names:
+        op = model.operation_by_name[name]
+        state = compiled.with_values(state, {op.state_path: "executing"})
+        result = planner.plan(state, {name: op.goal}, budget=Budget(improve_expansions=0, seconds=60))
+        if not isinstance(result, Plan):
+            raise SystemExit(f"walk: no plan for {name}: {result.reason}")
+        state, _ = compiled.close(result.states[-1])
+        state = compiled.with_values(state, {op.state_path: "finished"})
+    return state
+
+
+def reference_cases() -> list[Case]:
+    model = engine_assembly.build_model()
+    compiled, forbidden = compiled_of(model)
+    planner = Planner(compiled, forbidden)
+    order = list(engine_assembly.OPERATION_ORDER)
+    goals_of = {op.name: op.goal for op in model.operations}
+    frame_placed = walk(model, compiled, planner, order[: order.index("LiftLadderFrame") + 1])
+    bolts_placed = walk(model, compiled, planner, order[: order.index("PlaceBolts") + 1])
+    holding = planner.plan(bolts_placed, {"filter tool at home": parse_predicate(
+        "rsp.tool_m == filter_tool && ur.pos_m == home && ur.ref_pos_c == home")}, budget=Budget(seconds=60))
+    assert isinstance(holding, Plan), holding
+    bolts = {n: g for n, g in goals_of.items() if n.startswith("TightenBolt")}
+    mounted = walk(model, compiled, planner, [*order[: order.index("TightenBolt24") + 1], "MountFilter1",
+                                              "MountFilter2", "MountFilter3", "MountOilPipes"])
+    park_set = ["ParkNutrunner", "AttachFilterTool", "TightenFilter1", "TightenFilter2", "TightenFilter3",
+                "TightenPipe1", "TightenPipe2"]
+    executing = {model.operation_by_name[n].state_path: "executing" for n in park_set}
+    robot_home = model.initial_state()
+    robot_home.update(load_state(str(HERE / "robothome_state.toml"), model))
+    return [
+        Case("TightenBolt7 (filter tool at home)", compiled, forbidden, holding.states[-1],
+             {"TightenBolt7": goals_of["TightenBolt7"]}),
+        Case("24 bolts (frame placed)", compiled, forbidden, frame_placed, bolts),
+        Case("Park+AttachFilterTool+3 filters+2 pipes", compiled, forbidden,
+             compiled.with_values(mounted, executing), {n: goals_of[n] for n in park_set}),
+        Case("RobotHome (where it stalled)", compiled, forbidden, compiled.pack(robot_home),
+             {"RobotHome": goals_of["RobotHome"]}),
+    ]
+
+
+def station_cases() -> list[Case]:
+    """Each other station: the goals of every operation whose precondition holds at the start."""
+    cases = []
+    for reference in OTHER_STATIONS:
+        try:
+            model = load_model(reference)
+        except Exception as exc:  # a station not (yet) in this tree: say so, go on
+            print(f"  {reference}: not benchmarked ({exc})", file=sys.stderr)
+            continue
+        compiled, forbidden = compiled_of(model)
+        start = compiled.initial()
+        state = compiled.unpack(start)
+        goals = {op.name: op.goal for op in model.operations if op.pre.eval(state)}
+        cases.append(Case(f"{model.name}: {len(goals)} goals at start", compiled, forbidden, start, goals))
+    return cases
+
+
+def synthetic_cases(sizes: list[int]) -> list[Case]:
+    cases = []
     for n in sizes:
         model = synthetic.build_model(n)
         compiled = CompiledModel(model)
-        goals = {op.name: op.goal for op in model.operations}
-        start = compiled.initial()
-        planner = Planner(compiled)
-        cold, result = timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=300))
-        warm = statistics.median(timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=300))[0]
-                                 for _ in range(repeats))
-        growth = f"x{cold / previous:.1f}" if previous else "-"
-        previous = cold
-        bfs_cells = ["-", "-", "-", "-"]
-        if n in bfs_sizes:
-            bfs_time, baseline = timed(lambda c=compiled, s=start, g=goals: breadth_first(
-                c, s, all_of(*g.values()), limit_states=bfs_limit))
-            states = f"{baseline.stats.generated}"
-            if isinstance(baseline, NoPlan):
-                bfs_cells = [f">{ms(bfs_time)}", f"gave up ({bfs_limit} states)", states, f">x{bfs_time / warm:.0f}"]
-            else:
-                bfs_cells = [ms(bfs_time), length(baseline), states, f"x{bfs_time / warm:.0f}"]
-        stats = result.stats
-        rows.append([str(n), ms(cold), ms(warm), length(result), str(stats.expanded), str(stats.generated),
-                     ms(stats.heuristic_seconds), growth, *bfs_cells])
-        print(f"  synthetic N={n}: {length(result)} steps, cold {ms(cold)}, warm {ms(warm)}", file=sys.stderr)
-    table("1. Synthetic N-bolt station (ring of 10 poses): all N bolts from the initial state",
-          ["N", "A* cold", "A* warm", "length", "expanded", "generated", "h build", "growth",
-           "BFS time", "BFS length", "BFS states", "BFS/A* warm"], rows)
+        cases.append(Case(f"synthetic N={n}", compiled, None, compiled.initial(),
+                          {op.name: op.goal for op in model.operations}))
+    return cases
 
 
-# --- 2. reference station ------------------------------------------------------------------
-class Reference:
-    def __init__(self) -> None:
-        model = engine_assembly.build_model()
-        supervisor = synthesize(model)
-        self.model = model
-        self.forbidden = supervisor.forbidden
-        self.compiled = CompiledModel(model, supervisor.guards)
-        self.bolts = {f"TightenBolt{i}": model.operation_by_name[f"TightenBolt{i}"].goal
-                      for i in engine_assembly.BOLTS}
-        self.states = self._walk()
+# --- 2. goal sets asked during runs ----------------------------------------------------------------
+def bench_runs(runs: int) -> None:
+    from deploy.local import run_in_process
 
-    def planner(self, options: HeuristicOptions | None = None) -> Planner:
-        return Planner(self.compiled, self.forbidden, options=options)
+    firsts: list[float] = []
+    first_minimal = shown_minimal = requests = 0
+    original = Planner.plan_anytime
 
-    def _walk(self) -> dict[str, State]:
-        """Run the operations in order (one plan each, as the engine would) and keep the scenario states."""
-        compiled, planner = self.compiled, self.planner()
-        state = compiled.initial()
-        kept: dict[str, State] = {}
-        for name in engine_assembly.OPERATION_ORDER[: engine_assembly.OPERATION_ORDER.index("PlaceBolts") + 1]:
-            op = self.model.operation_by_name[name]
-            state = compiled.with_values(state, {op.state_path: "executing"})
-            result = planner.plan(state, {name: op.goal}, time_limit=120)
-            if not isinstance(result, Plan):
-                raise SystemExit(f"reference walk: no plan for {name}: {result.reason}")
-            state, _ = compiled.close(result.states[-1])
-            state = compiled.with_values(state, {op.state_path: "finished"})
-            kept[name] = state
-        holding = planner.plan(kept["PlaceBolts"], {"filter tool at home": parse_predicate(
-            "rsp.tool_m == filter_tool && ur.pos_m == home && ur.ref_pos_c == home")}, time_limit=120)
-        if not isinstance(holding, Plan):
-            raise SystemExit(f"reference walk: cannot take the filter tool home: {holding.reason}")
-        return {"frame placed": kept["LiftLadderFrame"], "bolts placed": kept["PlaceBolts"],
-                "filter tool at home": holding.states[-1]}
+    def recording(self: Planner, start: State, goals: Mapping[str, Predicate], disabled: frozenset[str] = frozenset(),
+                  budget: Budget | None = None):  # type: ignore[no-untyped-def]
+        nonlocal first_minimal, shown_minimal, requests
+        began = time.perf_counter()
+        answers = []
+        for answer in original(self, start, goals, disabled, budget):
+            if not answers:
+                firsts.append(time.perf_counter() - began)
+            answers.append(answer)
+            yield answer
+        requests += 1
+        if isinstance(answers[-1], Plan) and answers[-1].stats.minimal:
+            shown_minimal += 1
+            if isinstance(answers[0], Plan) and len(answers[0].steps) == len(answers[-1].steps):
+                first_minimal += 1
 
-
-def bench_reference(reference: Reference, repeats: int, quick: bool) -> None:
-    bolt7 = {"TightenBolt7": reference.bolts["TightenBolt7"]}
-    scenarios: list[tuple[str, str, Mapping[str, Predicate], int]] = [
-        ("TightenBolt7", "filter tool at home", bolt7, repeats * 4),
-        ("24 bolts", "bolts placed", reference.bolts, repeats),
-    ]
-    if not quick:
-        scenarios.append(("24 bolts", "frame placed", reference.bolts, max(1, repeats // 2)))
-    rows = []
-    for label, where, goals, runs in scenarios:
-        start = reference.states[where]
-        planner = reference.planner()
-        cold, result = timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=300))
-        warm_times = [timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=300))[0]
-                      for _ in range(runs)]
-        stats = result.stats
-        rows.append([label, where, ms(cold), ms(statistics.median(warm_times)), length(result),
-                     str(stats.expanded), str(stats.generated), ms(stats.heuristic_seconds)])
-        print(f"  reference {label} from {where}: {length(result)} steps, cold {ms(cold)}", file=sys.stderr)
-    start = reference.states["filter tool at home"]
-    bfs_time, baseline = timed(lambda: breadth_first(reference.compiled, start, bolt7["TightenBolt7"],
-                                                     reference.forbidden, limit_states=300_000))
-    gave_up = isinstance(baseline, NoPlan)
-    rows.append(["TightenBolt7 (BFS)", "filter tool at home", (">" if gave_up else "") + ms(bfs_time), "-",
-                 "gave up (300000 states)" if gave_up else length(baseline),
-                 str(baseline.stats.expanded), str(baseline.stats.generated), "-"])
-    table("2. Reference station (engine assembly, synthesized supervisor)",
-          ["goal", "from", "cold", "warm (median)", "length", "expanded", "generated", "h build (cold)"], rows)
-
-
-# --- 3. ablation ---------------------------------------------------------------------------------
-def bench_ablation(reference: Reference) -> None:
-    variants = [
-        ("full", HeuristicOptions()),
-        ("no potentials", HeuristicOptions(potential=0)),
-        ("one pattern per family", HeuristicOptions(patterns=1)),
-        ("no arborescence", HeuristicOptions(arborescence=False)),
-        ("no enabling landmarks", HeuristicOptions(landmarks=False)),
-        ("design note (1 pattern, no arb., no pot.)", HeuristicOptions(patterns=1, arborescence=False, potential=0)),
-    ]
-    model = synthetic.build_model(24)
-    compiled = CompiledModel(model)
-    synthetic_goals = {op.name: op.goal for op in model.operations}
-    cases = [
-        ("synthetic N=24", compiled, None, compiled.initial(), synthetic_goals),
-        ("reference 24 bolts, bolts placed", reference.compiled, reference.forbidden,
-         reference.states["bolts placed"], reference.bolts),
-        ("reference 24 bolts, frame placed", reference.compiled, reference.forbidden,
-         reference.states["frame placed"], reference.bolts),
-    ]
-    rows = []
-    for case, comp, forbidden, start, goals in cases:
-        for name, options in variants:
-            planner = Planner(comp, forbidden, options=options)
-            heuristic = planner.heuristic(tuple(goals.values()))
-            heuristic.prepare(start)
-            h0 = heuristic(start)
-            _, result = timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=20))
-            warm, again = timed(lambda p=planner, g=goals, s=start: p.plan(s, g, time_limit=20))
-            rows.append([case, name, str(h0), length(result), str(result.stats.expanded),
-                         ms(warm) if isinstance(again, Plan) else ">20 s"])
-            print(f"  ablation {case} / {name}: h0={h0}, {length(result)}", file=sys.stderr)
-    table("3. What each part of the heuristic buys (h at the start vs plan length; warm time, 20 s limit)",
-          ["case", "heuristic", "h(start)", "length", "expanded", "warm"], rows)
+    Planner.plan_anytime = recording  # type: ignore[method-assign]
+    finished = 0
+    began = time.perf_counter()
+    try:
+        for seed in range(1, runs + 1):
+            summary = run_in_process(engine_assembly.build_model(), seed=seed, budget=VIRTUAL_BUDGET)
+            finished += summary.finished
+            print(f"  run seed {seed}: {'finished' if summary.finished else 'NOT finished'} "
+                  f"{summary.operations_finished}/{summary.operations_total}, {summary.plans} plans, "
+                  f"wall {summary.wall_seconds:.1f} s", file=sys.stderr)
+    finally:
+        Planner.plan_anytime = original  # type: ignore[method-assign]
+    firsts.sort()
+    p99 = firsts[min(len(firsts) - 1, int(len(firsts) * 0.99))]
+    table(f"2. Goal sets the reference station asks, in-process runs seeds 1..{runs} "
+          f"({finished}/{runs} finished, {time.perf_counter() - began:.0f} s)",
+          ["requests", "first plan p50", "p99", "max", "final shown minimal", "first already minimal"],
+          [[str(requests), ms(statistics.median(firsts)), ms(p99), ms(firsts[-1]), str(shown_minimal),
+            f"{first_minimal} ({100 * first_minimal / max(1, shown_minimal):.0f} %)"]])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer sizes and repeats; under a minute")
+    parser.add_argument("--quick", action="store_true", help="fewer cases and repeats, short limits")
+    parser.add_argument("--runs", type=int, default=0, help="also record the goal sets of N in-process runs")
     args = parser.parse_args()
     print(f"planner benchmark (python {sys.version.split()[0]}, {os.cpu_count()} cpu, "
           f"load average {os.getloadavg()[0]:.1f})")
-    if args.quick:
-        bench_synthetic([4, 12, 24], repeats=3, bfs_sizes={4}, bfs_limit=300_000)
-    else:
-        bench_synthetic([4, 12, 24, 48, 96], repeats=5, bfs_sizes={4, 12}, bfs_limit=2_000_000)
-    reference = Reference()
-    bench_reference(reference, repeats=3 if args.quick else 5, quick=args.quick)
-    if not args.quick:
-        bench_ablation(reference)
+    limit = 5.0 if args.quick else 30.0
+    repeats = 1 if args.quick else 3
+    rows: list[list[str]] = []
+    for case in reference_cases():
+        rows += bench_case(case, limit, 0 if args.quick else 300_000, repeats)
+    for case in station_cases():
+        rows += bench_case(case, limit, 0, repeats)
+    sizes = [4, 12, 24] if args.quick else [4, 12, 24, 48, 96]
+    for case in synthetic_cases(sizes):
+        rows += bench_case(case, limit, 300_000 if case.name.endswith(("=4", "=12")) else 0, repeats)
+    table(f"1. Planner members per case (limit {limit:.0f} s per member; warm = median of {repeats})",
+          ["case", "member", "cold", "warm", "length", "minimal", "expanded"], rows)
+    if args.runs:
+        bench_runs(args.runs)
     print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
 
 

@@ -1,0 +1,107 @@
+"""Satisficing search: lazy greedy best-first over macro-steps with the relaxed-plan heuristic
+and preferred moves (the Fast Downward recipe: two open lists, preferred successors boosted).
+
+Why this member answers first where A* stalls: the states that blow A* up are
+interleavings of moves that do not matter to the goal (the operator confirming, the
+camera, the nutrunner resetting in the operator's hand). Such a move is never in the
+relaxed plan, so it is never preferred, and the search follows the preferred moves
+straight to a goal; the plain list keeps the search complete. A state is evaluated
+when it is taken from a list, not when it is generated (lazy), so a wide state costs
+one heuristic evaluation, not one per successor.
+
+Work is counted in expansions (deterministic: a seed reproduces a run on any
+machine); a wall-clock deadline may stop it earlier.
+"""
+
+from __future__ import annotations
+
+import heapq
+import time
+from collections.abc import Callable
+
+from common.model.compiled import State
+
+from .abstraction import INF
+from .relaxed import Estimate
+from .search import SearchResult
+from .steps import Move, StateTest, StepSystem
+
+BOOST = 1000  # expansions from the preferred list after each new best h
+CHECK_EVERY = 8  # an expansion evaluates a relaxed plan (milliseconds): look at the clock often
+
+
+def greedy(
+    system: StepSystem,
+    start: State,
+    goal: StateTest,
+    forbidden: StateTest | None,
+    evaluate: Callable[[State], Estimate],
+    *,
+    max_expansions: int,
+    deadline: float | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> SearchResult:
+    """Some move sequence from `start` (not forbidden, not a goal) to a goal state, or why none was found."""
+    prefix: list[Move] = []
+    root = start
+    if system.first_automatic(start) is not None:
+        forced = system.chain(start, [], None, goal, forbidden)
+        if forced is None:
+            return SearchResult(None, reason="the automatic transitions due at the start enter a forbidden "
+                                             "state or never stop")
+        if forced.goal:
+            return SearchResult(list(forced.moves))
+        root, prefix = forced.state, list(forced.moves)
+    parent: dict[State, tuple[State, tuple[Move, ...]] | None] = {}
+    # entries: (h of the parent, order, state, its parent link)
+    Entry = tuple[int, int, State, tuple[State, tuple[Move, ...]] | None]
+    lists: tuple[list[Entry], list[Entry]] = ([], [])  # preferred, all
+    order = 0
+    lists[1].append((0, 0, root, None))
+    best_h = INF
+    priority = 0  # > 0: take from the preferred list
+    turn = 0
+    expanded = generated = 0
+    dead_ends = 0
+    pop, push = heapq.heappop, heapq.heappush
+    while lists[0] or lists[1]:
+        if lists[0] and (priority > 0 or not lists[1] or turn % 2 == 0):
+            which = 0
+            priority -= 1
+        else:
+            which = 1
+        turn += 1
+        _, _, state, link = pop(lists[which])
+        if state in parent:
+            continue
+        parent[state] = link
+        estimate = evaluate(state)
+        if estimate.h >= INF:
+            dead_ends += 1
+            continue
+        expanded += 1
+        if expanded > max_expansions or (expanded % CHECK_EVERY == 0 and (
+                (deadline is not None and time.perf_counter() > deadline) or (stop is not None and stop()))):
+            return SearchResult(None, expanded, generated, timed_out=True)
+        if estimate.h < best_h:
+            best_h = estimate.h
+            priority = BOOST
+        preferred = estimate.preferred
+        for succ in system.successors(state, goal, forbidden):
+            generated += 1
+            if succ.goal:
+                moves = list(succ.moves)
+                back = state
+                while (up := parent[back]) is not None:
+                    back, steps = up
+                    moves[:0] = steps
+                return SearchResult(prefix + moves, expanded, generated)
+            if succ.state in parent:
+                continue
+            order += 1
+            entry = (estimate.h, order, succ.state, (state, succ.moves))
+            if succ.moves[0] in preferred:
+                push(lists[0], entry)
+            push(lists[1], entry)
+    reason = "exhausted" if dead_ends == 0 or expanded else "heuristic"
+    return SearchResult(None, expanded, generated, reason=reason)

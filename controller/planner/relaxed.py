@@ -1,0 +1,357 @@
+"""The relaxed-plan heuristic (FF) over finite-domain values, with preferred moves.
+
+Relaxation: a variable accumulates every value it reaches instead of swapping one for
+another, so a relaxed state is one bit mask of reached values per variable. A
+predicate (negations pushed to the literals) holds in a relaxed state when some
+choice of reached values makes it true, which over-approximates every real state
+the masks contain: a goal that is relaxed-unreachable is unreachable, so such a
+state is a proven dead end. Synthesized guards are part of the relaxation, so the
+operator's leaving the robot zone appears in the relaxed plan that moves the robot.
+
+`RelaxedPlan.evaluate(state)` layers the reachable values from `state` (a guard is
+re-evaluated only when a variable it reads gained a value), then extracts a relaxed
+plan backwards from the goal, each fact from its earliest achiever: h is the number
+of moves in it, and the moves that are applicable in `state` itself are *preferred*,
+the ones a satisficing search tries first. Nothing is learned per station: the
+model's own guards and actions are all it reads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from common.model import Predicate
+from common.model.compiled import State
+from common.model.predicates import And, Const, Eq, In, IsTrue, Ne, Not, Or, Ref
+
+from .abstraction import INF
+from .steps import Move, StepSystem
+
+# NNF nodes over (variable index, value mask): ("lit", i, mask) | ("eqv", i, j, equal) |
+# ("and", children) | ("or", children) | ("const", bool)
+Node = tuple
+
+
+@dataclass(frozen=True)
+class RelaxedAction:
+    move: Move
+    guard: Node
+    test: Callable[[list[int]], bool]
+    reads: tuple[int, ...]
+    conjuncts: tuple[Node, ...]  # the guard's top-level conjuncts
+    failing: Callable[[list[int]], list[int]]  # the conjuncts that do not hold in given masks
+    constants: tuple[tuple[int, int], ...]  # (variable, the one-bit mask it gains)
+    copies: tuple[tuple[int, int], ...]  # (target variable, source variable): target := source
+
+
+@dataclass(frozen=True)
+class Estimate:
+    h: int  # INF: the goal is unreachable even relaxed (a proven dead end)
+    preferred: frozenset[Move]  # moves of the relaxed plan applicable in the evaluated state
+
+
+class _Encoder:
+    """Predicates to NNF over value masks, and NNF to a generated test over the masks list `r`."""
+
+    def __init__(self, paths: Sequence[str], domains: Sequence[tuple[object, ...]]) -> None:
+        self.index = {p: i for i, p in enumerate(paths)}
+        self.bits: list[dict[tuple[type, object], int]] = [
+            {(type(v), v): 1 << k for k, v in enumerate(values)} for values in domains
+        ]
+        self.full = [(1 << len(values)) - 1 for values in domains]
+
+    def bit(self, i: int, value: object) -> int:
+        return self.bits[i].get((type(value), value), 0)
+
+    def mask(self, i: int, values: Sequence[object]) -> int:
+        m = 0
+        for v in values:
+            m |= self.bit(i, v)
+        return m
+
+    def nnf(self, p: Predicate, positive: bool = True) -> Node:
+        if isinstance(p, Const):
+            return ("const", p.value == positive)
+        if isinstance(p, Not):
+            return self.nnf(p.operand, not positive)
+        if isinstance(p, And | Or):
+            conjunction = isinstance(p, And) == positive
+            return ("and" if conjunction else "or", tuple(self.nnf(q, positive) for q in p.items))
+        if isinstance(p, IsTrue):
+            i = self.index[p.path]
+            return self._literal(i, self.bit(i, True), positive)
+        if isinstance(p, Eq | Ne):
+            i = self.index[p.path]
+            equal = isinstance(p, Eq) == positive
+            if isinstance(p.value, Ref):
+                return ("eqv", i, self.index[p.value.path], equal)
+            return self._literal(i, self.bit(i, p.value), equal)
+        if isinstance(p, In):
+            i = self.index[p.path]
+            return self._literal(i, self.mask(i, p.values), positive)
+        raise TypeError(f"unknown predicate node {p!r}")
+
+    def _literal(self, i: int, mask: int, positive: bool) -> Node:
+        return ("lit", i, mask if positive else self.full[i] & ~mask)
+
+    def source(self, node: Node) -> str:
+        tag = node[0]
+        if tag == "const":
+            return repr(node[1])
+        if tag == "lit":
+            return f"(r[{node[1]}] & {node[2]}) != 0"
+        if tag == "eqv":
+            _, i, j, equal = node
+            # Masks of two variables compare bit for bit only over one shared domain; the search never
+            # relies on a relaxed test being tight, only on it never being false where a real one holds.
+            return "True" if not equal else f"(r[{i}] & r[{j}]) != 0 or {self.full[i] != self.full[j]}"
+        joiner = " and " if tag == "and" else " or "
+        return "(" + joiner.join(self.source(c) for c in node[1]) + ")" if node[1] else repr(tag == "and")
+
+    def compile(self, node: Node) -> Callable[[list[int]], bool]:
+        return eval(f"lambda r: {self.source(node)}")  # generated from the model's own predicates
+
+    def failing(self, conjuncts: Sequence[Node]) -> Callable[[list[int]], list[int]]:
+        """One generated function listing the conjuncts that do not hold: the relaxed plan needs
+        achievers only for those, and most of a synthesized guard holds where it is asked."""
+        lines = ["def failing(r):", "    out = []"]
+        lines += [f"    if not ({self.source(c)}): out.append({k})" for k, c in enumerate(conjuncts)]
+        lines.append("    return out")
+        namespace: dict[str, object] = {}
+        exec("\n".join(lines), namespace)
+        return namespace["failing"]  # type: ignore[return-value]
+
+
+def conjuncts_of(node: Node) -> tuple[Node, ...]:
+    if node[0] == "and":
+        return tuple(c for child in node[1] for c in conjuncts_of(child))
+    return (node,)
+
+
+def _reads(node: Node, into: set[int]) -> set[int]:
+    tag = node[0]
+    if tag == "lit":
+        into.add(node[1])
+    elif tag == "eqv":
+        into.update(node[1:3])
+    elif tag in ("and", "or"):
+        for child in node[1]:
+            _reads(child, into)
+    return into
+
+
+class RelaxedModel:
+    """The relaxed moves of one step system (deliberate, effect outcomes and automatics), built once."""
+
+    def __init__(self, system: StepSystem) -> None:
+        compiled = system.compiled
+        self.encoder = _Encoder(compiled.paths, [d.values for d in compiled.domains])
+        actions: list[RelaxedAction] = []
+        moves = [(t, o) for t, o in system.moves] + [(t, 0) for t in system.automatic]
+        for t, o in moves:
+            guard = self.encoder.nnf(compiled.guard_of(t.source))
+            constants, copies = [], []
+            for action in t.source.outcomes[o]:
+                target = compiled.index[action.path]
+                if isinstance(action.value, Ref):
+                    copies.append((target, compiled.index[action.value.path]))
+                else:
+                    constants.append((target, self.encoder.bit(target, action.value)))
+            reads = _reads(guard, set()) | {source for _, source in copies}
+            conjuncts = conjuncts_of(guard)
+            actions.append(RelaxedAction((t.number, o), guard, self.encoder.compile(guard), tuple(sorted(reads)),
+                                         conjuncts, self.encoder.failing(conjuncts), tuple(constants),
+                                         tuple(copies)))
+        self.actions = tuple(actions)
+        self.readers: list[list[int]] = [[] for _ in compiled.paths]
+        for a, action in enumerate(actions):
+            for i in action.reads:
+                self.readers[i].append(a)
+        self.always = [a for a, action in enumerate(actions) if not action.reads]
+        self.domains = [d.values for d in compiled.domains]
+        # Tests of nested nodes, by id; the node is kept beside its test so that its id is never reused.
+        self.tests: dict[int, tuple[Node, Callable[[list[int]], bool]]] = {}
+
+    def holds(self, node: Node, masks: list[int]) -> bool:
+        found = self.tests.get(id(node))
+        if found is None:
+            found = self.tests[id(node)] = (node, self.encoder.compile(node))
+        return found[1](masks)
+
+    def goal(self, goal: Predicate) -> RelaxedPlan:
+        return RelaxedPlan(self, goal)
+
+
+class RelaxedPlan:
+    """h^FF and preferred moves toward one goal predicate."""
+
+    def __init__(self, relaxed: RelaxedModel, goal: Predicate) -> None:
+        self.relaxed = relaxed
+        self.goal_node = relaxed.encoder.nnf(goal)
+        self.goal_test = relaxed.encoder.compile(self.goal_node)
+        self.goal_conjuncts = conjuncts_of(self.goal_node)
+        self.goal_failing = relaxed.encoder.failing(self.goal_conjuncts)
+        self.evaluations = 0
+
+    def __call__(self, state: State) -> int:
+        return self.evaluate(state).h
+
+    def evaluate(self, state: State) -> Estimate:
+        self.evaluations += 1
+        relaxed = self.relaxed
+        encoder = relaxed.encoder
+        actions = relaxed.actions
+        r = [encoder.bit(i, v) for i, v in enumerate(state)]
+        own = list(r)
+        # fact (variable, bit) -> (layer, achieving action or -1 for the state itself)
+        facts: dict[tuple[int, int], tuple[int, int]] = {(i, m): (0, -1) for i, m in enumerate(r)}
+        applied: dict[int, int] = {}  # action -> the layer whose masks made its guard hold
+        goal_test = self.goal_test
+        candidates: set[int] | range = range(len(actions))
+        layer = 0
+        while not goal_test(r):
+            ready = sorted(a for a in candidates if a not in applied and actions[a].test(r))
+            if not ready:
+                return Estimate(INF, frozenset())
+            gained: list[tuple[int, int, int]] = []
+            for a in ready:
+                applied[a] = layer
+                action = actions[a]
+                for i, bit in action.constants:
+                    if not r[i] & bit:
+                        gained.append((i, bit, a))
+                for target, source in action.copies:
+                    for bit in self._copied(target, source, r[source]):
+                        if not r[target] & bit:
+                            gained.append((target, bit, a))
+            layer += 1
+            changed: set[int] = set()
+            for i, bit, a in gained:
+                if (i, bit) not in facts:
+                    facts[i, bit] = (layer, a)
+                    r[i] |= bit
+                    changed.add(i)
+            readers = relaxed.readers
+            candidates = {a for i in changed for a in readers[i]}
+            if not changed:
+                return Estimate(INF, frozenset())
+        return self._extract(facts, applied, own, r)
+
+    def _copied(self, target: int, source: int, mask: int) -> list[int]:
+        domains, encoder = self.relaxed.domains, self.relaxed.encoder
+        return [encoder.bit(target, v) for k, v in enumerate(domains[source]) if mask >> k & 1]
+
+    def _extract(self, facts: dict[tuple[int, int], tuple[int, int]], applied: dict[int, int],
+                 own: list[int], reached: list[int]) -> Estimate:
+        actions = self.relaxed.actions
+        chosen: set[int] = set()
+        self._own = own
+        self._reached = reached
+        self._costs: dict[int, int] = {}
+        pending = [f for k in self.goal_failing(own) for f in self._support(self.goal_conjuncts[k], facts)]
+        seen: set[tuple[int, int]] = set()
+        while pending:
+            fact = pending.pop()
+            if fact in seen:
+                continue
+            seen.add(fact)
+            achiever = facts[fact][1]
+            if achiever < 0 or achiever in chosen:
+                continue
+            chosen.add(achiever)
+            action = actions[achiever]
+            for k in action.failing(own):
+                pending.extend(self._support(action.conjuncts[k], facts))
+            for target, source in action.copies:
+                if target == fact[0]:
+                    pending.extend(self._copy_support(source, target, fact[1], facts))
+        preferred = frozenset(actions[a].move for a in chosen if applied[a] == 0)
+        return Estimate(len(chosen), preferred)
+
+    def _copy_support(self, source: int, target: int, bit: int, facts: dict) -> list[tuple[int, int]]:
+        encoder, domains = self.relaxed.encoder, self.relaxed.domains
+        value = next(v for v in domains[target] if encoder.bit(target, v) == bit)
+        wanted = encoder.bit(source, value)
+        return [(source, wanted)] if (source, wanted) in facts else []
+
+    # --- the cheapest facts that make a node true (earliest layer; ties: lowest bit) ------------
+    def _holds_here(self, node: Node) -> bool:
+        """The node holds in the evaluated state itself: it needs no achiever at all."""
+        return self.relaxed.holds(node, self._own)
+
+    def _literal_cost(self, i: int, mask: int, facts: dict) -> int:
+        reached = mask & self._reached[i]
+        if not reached:
+            return INF
+        if reached & self._own[i]:
+            return 0
+        return min(facts[i, b][0] for b in _bits(reached))
+
+    def _cost(self, node: Node, facts: dict) -> int:
+        if node[0] == "lit":
+            return self._literal_cost(node[1], node[2], facts)
+        known = self._costs.get(id(node))
+        if known is None:
+            known = self._costs[id(node)] = self._cost_of(node, facts)
+        return known
+
+    def _cost_of(self, node: Node, facts: dict) -> int:
+        tag = node[0]
+        if tag == "const":
+            return 0 if node[1] else INF
+        if tag == "eqv":
+            return 0 if not node[3] else self._eqv_choice(node, facts)[0]
+        if tag == "and":
+            worst = 0
+            for child in node[1]:
+                worst = max(worst, self._cost(child, facts))
+                if worst >= INF:
+                    break
+            return worst
+        best = INF
+        for child in node[1]:
+            best = min(best, self._cost(child, facts))
+            if best <= 1:  # nothing cheaper than the first layer once the node does not hold here
+                break
+        return best
+
+    def _eqv_choice(self, node: Node, facts: dict) -> tuple[int, list[tuple[int, int]]]:
+        _, i, j, _ = node
+        encoder, domains = self.relaxed.encoder, self.relaxed.domains
+        best: tuple[int, list[tuple[int, int]]] = (INF, [])
+        for v in domains[i]:
+            a, b = (i, encoder.bit(i, v)), (j, encoder.bit(j, v))
+            if a in facts and b in facts:
+                cost = max(facts[a][0], facts[b][0])
+                if cost < best[0]:
+                    best = (cost, [a, b])
+        return best
+
+    def _support(self, node: Node, facts: dict) -> list[tuple[int, int]]:
+        tag = node[0]
+        if tag == "const" or (tag == "eqv" and not node[3]):
+            return []
+        if tag == "lit":
+            if node[2] & self._own[node[1]]:
+                return []
+            i = node[1]
+            options = [(facts[i, b][0], b) for b in _bits(node[2] & self._reached[i])]
+            return [(i, min(options)[1])] if options else []
+        if tag == "eqv":
+            return self._eqv_choice(node, facts)[1]
+        if self._holds_here(node):
+            return []
+        if tag == "and":
+            return [f for c in node[1] for f in self._support(c, facts)]
+        best = min(node[1], key=lambda c: self._cost(c, facts))
+        return self._support(best, facts)
+
+
+def _bits(mask: int) -> list[int]:
+    out = []
+    while mask:
+        low = mask & -mask
+        out.append(low)
+        mask ^= low
+    return out
