@@ -48,7 +48,7 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
     model = load_model(model_reference)
     supervisor = synthesize(model)
     planner = Planner(CompiledModel(model, supervisor.guards), supervisor.forbidden)
-    planner.relaxed(frozenset())  # the satisficing member's tables, before the first request
+    planner.prepare()  # the satisficing member's tables, before the first request
     while True:
         request: PlanRequest | None = requests.recv()
         while request is not None and requests.poll():

@@ -79,6 +79,13 @@ class Planner:
             system = self._systems[disabled] = StepSystem(self.compiled, disabled, self._race(disabled))
         return system
 
+    def prepare(self, disabled: frozenset[str] = frozenset()) -> float:
+        """Build the tables every request needs (step system, race check, relaxed model) before the first
+        one, as the controller's planner process does at start-up; returns the seconds it took."""
+        began = time.perf_counter()
+        self.relaxed(disabled)
+        return time.perf_counter() - began
+
     def relaxed(self, disabled: frozenset[str]) -> RelaxedModel:
         found = self._relaxed.get(disabled)
         if found is None:

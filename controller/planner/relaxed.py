@@ -147,10 +147,24 @@ class RelaxedModel:
     def __init__(self, system: StepSystem) -> None:
         compiled = system.compiled
         self.encoder = _Encoder(compiled.paths, [d.values for d in compiled.domains])
-        actions: list[RelaxedAction] = []
         moves = [(t, o) for t, o in system.moves] + [(t, 0) for t in system.automatic]
+        guards: dict[int, tuple[Node, tuple[Node, ...]]] = {}  # by transition: its outcomes share the guard
+        for t, _ in moves:
+            if t.number not in guards:
+                guard = self.encoder.nnf(compiled.guard_of(t.source))
+                guards[t.number] = (guard, conjuncts_of(guard))
+        # Every test in one generated module: one compile instead of hundreds.
+        lines = []
+        for number, (guard, conjuncts) in guards.items():
+            lines.append(f"def test_{number}(r): return {self.encoder.source(guard)}")
+            lines += [f"def failing_{number}(r):", "    out = []"]
+            lines += [f"    if not ({self.encoder.source(c)}): out.append({k})" for k, c in enumerate(conjuncts)]
+            lines.append("    return out")
+        namespace: dict[str, Callable[[list[int]], object]] = {}
+        exec("\n".join(lines), namespace)  # generated from the model's own predicates
+        actions: list[RelaxedAction] = []
         for t, o in moves:
-            guard = self.encoder.nnf(compiled.guard_of(t.source))
+            guard, conjuncts = guards[t.number]
             constants, copies = [], []
             for action in t.source.outcomes[o]:
                 target = compiled.index[action.path]
@@ -159,17 +173,27 @@ class RelaxedModel:
                 else:
                     constants.append((target, self.encoder.bit(target, action.value)))
             reads = _reads(guard, set()) | {source for _, source in copies}
-            conjuncts = conjuncts_of(guard)
-            actions.append(RelaxedAction((t.number, o), guard, self.encoder.compile(guard), tuple(sorted(reads)),
-                                         conjuncts, self.encoder.failing(conjuncts), tuple(constants),
-                                         tuple(copies)))
+            actions.append(RelaxedAction((t.number, o), guard, namespace[f"test_{t.number}"],  # type: ignore[arg-type]
+                                         tuple(sorted(reads)), conjuncts,
+                                         namespace[f"failing_{t.number}"],  # type: ignore[arg-type]
+                                         tuple(constants), tuple(copies)))
         self.actions = tuple(actions)
         self.readers: list[list[int]] = [[] for _ in compiled.paths]
         for a, action in enumerate(actions):
             for i in action.reads:
                 self.readers[i].append(a)
         self.always = [a for a, action in enumerate(actions) if not action.reads]
+        self.system = system
+        first_automatic = len(system.moves)
+        body = [f"    if {self.encoder.source(actions[a].guard)}: out.append({a})"
+                for a in range(first_automatic, len(actions))]
+        namespace2: dict[str, Callable[[list[int]], list[int]]] = {}
+        exec("\n".join(["def automatic_ready(r):", "    out = []", *body, "    return out"]), namespace2)
+        self.automatic_ready = namespace2["automatic_ready"]
         self.domains = [d.values for d in compiled.domains]
+        # A state's value is always of its variable's domain, so a plain value key is exact here.
+        self.value_bits: list[dict[object, int]] = [{v: 1 << k for k, v in enumerate(values)}
+                                                    for values in self.domains]
         # Tests of nested nodes, by id; the node is kept beside its test so that its id is never reused.
         self.tests: dict[int, tuple[Node, Callable[[list[int]], bool]]] = {}
 
@@ -200,18 +224,22 @@ class RelaxedPlan:
     def evaluate(self, state: State) -> Estimate:
         self.evaluations += 1
         relaxed = self.relaxed
-        encoder = relaxed.encoder
         actions = relaxed.actions
-        r = [encoder.bit(i, v) for i, v in enumerate(state)]
+        value_bits = relaxed.value_bits
+        r = [value_bits[i][v] for i, v in enumerate(state)]
         own = list(r)
         # fact (variable, bit) -> (layer, achieving action or -1 for the state itself)
         facts: dict[tuple[int, int], tuple[int, int]] = {(i, m): (0, -1) for i, m in enumerate(r)}
         applied: dict[int, int] = {}  # action -> the layer whose masks made its guard hold
         goal_test = self.goal_test
-        candidates: set[int] | range = range(len(actions))
         layer = 0
+        # Layer 0 is the state itself, where the relaxed tests are the real guards: the step system's
+        # one generated call finds the enabled deliberate and effect moves (action ids are move indices).
+        ready = relaxed.system._enabled(state) + relaxed.automatic_ready(r)
+        candidates: set[int] = set()
         while not goal_test(r):
-            ready = sorted(a for a in candidates if a not in applied and actions[a].test(r))
+            if layer:
+                ready = sorted(a for a in candidates if a not in applied and actions[a].test(r))
             if not ready:
                 return Estimate(INF, frozenset())
             gained: list[tuple[int, int, int]] = []
