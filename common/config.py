@@ -33,16 +33,21 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     connect = [...]                 # optional, replaces [network].connect for this hub
 
     [hubs.pi-tool.devices.nr]    # one table per resource the hub serves; the table name is the
-    type = "nutrunner"           # resource name in the station model; type: a DEVICE_TYPES entry
+    type = "nutrunner"           # resource name in the station model; type: its device type (below)
     mode = "emulate"             # "emulate" (model effects) | "sim" (driver against a simulator) | "real"
     i2c_bus = 1                  # anything else: driver parameters, handed to the driver as is
 
+Device types: the standard ones (`DEVICE_TYPES`, common/resources) have built-in drivers
+or are emulated anyway; a station may bring its own (a CNC door, a conveyor), which run
+in `emulate` mode from the station model alone. Such a type in `sim` or `real` mode is an
+error here, at load time, rather than a hub that fails when it starts.
+
 Checks (all problems are reported at once, each as `file:line: key: message`):
 unknown keys, wrong types and out-of-range numbers, missing keys, duplicate hubs
-(a TOML error), a resource served by two hubs, unknown device type or mode, names
-that cannot be key chunks. With the station model (`load_station`, or
-`check_against_model`): a device whose resource the model lacks, a model resource
-no hub serves, a device type differing from the model's.
+(a TOML error), a resource served by two hubs, unknown device mode, a device type
+of the station's own outside `emulate` mode, names that cannot be key chunks. With
+the station model (`load_station`, or `check_against_model`): a device whose resource
+the model lacks, a model resource no hub serves, a device type differing from the model's.
 """
 
 from __future__ import annotations
@@ -434,9 +439,12 @@ def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str
             served[resource] = name
         device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource}, free=True)
         if device is not None:
-            if device.type not in DEVICE_TYPES:
-                checker.problem((*dpath, "type"), f"unknown device type {device.type!r} "
-                                                  f"(expected one of: {', '.join(DEVICE_TYPES)})")
+            if device.type not in DEVICE_TYPES and device.mode != "emulate":
+                # Only the model's effects can stand in for a device statehub has no driver for.
+                checker.problem((*dpath, "type"), f"unknown device type {device.type!r} in hub {name!r}: statehub "
+                                                  f"has no driver for it, so it runs only in mode 'emulate' (from "
+                                                  f"the station model), not {device.mode!r}; built-in types: "
+                                                  f"{', '.join(DEVICE_TYPES)}")
             devices[resource] = device
     return checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))
 
@@ -483,6 +491,17 @@ def _import_model(config: StationConfig) -> Model:
     return model
 
 
+def _check_type(checker: _Checker, hub: str, resource: str, device_type: str, model: Model) -> None:
+    model_resource = model.resource_by_name.get(resource)
+    if model_resource is None or not model_resource.device_type or model_resource.device_type == device_type:
+        return
+    # A type that is neither built in nor the model's is most likely misspelt: say both.
+    unknown = "unknown device " if device_type not in DEVICE_TYPES else ""
+    checker.problem(("hubs", hub, "devices", resource, "type"),
+                    f"{unknown}type {device_type!r}, but resource {resource!r} of the model is a "
+                    f"{model_resource.device_type!r}")
+
+
 def check_against_model(config: StationConfig, model: Model, *, text: str | None = None) -> None:
     """Every device is a resource of the model with the same type, and every resource has a hub."""
     if text is None:
@@ -491,14 +510,12 @@ def check_against_model(config: StationConfig, model: Model, *, text: str | None
     by_name = model.resource_by_name
     for hub in config.hubs.values():
         for resource, device in hub.devices.items():
-            dpath = ("hubs", hub.name, "devices", resource)
-            model_resource = by_name.get(resource)
-            if model_resource is None:
-                checker.problem(dpath, f"resource {resource!r} is not in station model {model.name!r} "
-                                       f"(its resources: {', '.join(sorted(by_name))})")
-            elif model_resource.device_type and model_resource.device_type != device.type:
-                checker.problem((*dpath, "type"), f"type {device.type!r}, but resource {resource!r} of the model "
-                                                  f"is a {model_resource.device_type!r}")
+            if resource not in by_name:
+                checker.problem(("hubs", hub.name, "devices", resource),
+                                f"resource {resource!r} is not in station model {model.name!r} "
+                                f"(its resources: {', '.join(sorted(by_name))})")
+            else:
+                _check_type(checker, hub.name, resource, device.type, model)
     for resource in by_name:
         if resource not in config.resources:
             checker.problem(("station", "model"), f"resource {resource!r} of station model {model.name!r} "
@@ -507,9 +524,40 @@ def check_against_model(config: StationConfig, model: Model, *, text: str | None
         raise ConfigError(checker.problems)
 
 
+def _type_problems_of_broken_file(text: str, file: str) -> list[ConfigProblem]:
+    """The device types that differ from the model's, in a file with other problems.
+
+    A device type is free text (a station brings its own), so a misspelt one is only
+    caught against the model; reporting it with the file's other problems keeps to
+    "every problem at once". Best effort: nothing if the model cannot be found or built."""
+    try:
+        data = tomllib.loads(text)
+        module_name, _, attribute = str(data["station"]["model"]).partition(":")
+        target = getattr(importlib.import_module(module_name), attribute)
+        model = target() if callable(target) and not isinstance(target, Model) else target
+        hubs = data.get("hubs", {})
+    except Exception:  # any failure here is already reported, or will be once the file is fixed
+        return []
+    if not isinstance(model, Model) or not isinstance(hubs, dict):
+        return []
+    checker = _Checker(file, text)
+    for hub, table in hubs.items():
+        devices = table.get("devices", {}) if isinstance(table, dict) else {}
+        for resource, device in (devices if isinstance(devices, dict) else {}).items():
+            if isinstance(device, dict) and isinstance(device.get("type"), str):
+                _check_type(checker, hub, resource, device["type"], model)
+    return checker.problems
+
+
 def load_station(path: str | Path) -> tuple[StationConfig, Model]:
     """Load the deployment file and the station model it names, and check them against each other."""
-    config = load_config(path)
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    try:
+        config = parse_config(text, str(path))
+    except ConfigError as error:
+        problems = error.problems + _type_problems_of_broken_file(text, str(path))
+        raise ConfigError(problems) from None
     model = config.load_model()
-    check_against_model(config, model)
+    check_against_model(config, model, text=text)
     return config, model

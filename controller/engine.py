@@ -10,6 +10,10 @@ values owned by the controller) and returns the new state:
   plan step it depends on has been observed, and only where its guard (synthesized
   guards included) holds. Effects are never applied here: they are observed.
 
+Stage 1 then runs again (with the automatics its actions enable) until it changes
+nothing: what stage 2 recorded may finish an operation or let a requested one start,
+and the tick leaves no operation waiting for a state change that nothing will cause.
+
 A plan is a shortest *sequence*, but it is executed as a trace: step j waits only
 for the earlier steps it conflicts with (one writes what the other reads or writes).
 Independent resources (the robot and the operator) therefore run in parallel while
@@ -20,7 +24,7 @@ tick asks for a replan with the reason.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from common.model import Kind, TransitionKind, Value
@@ -163,16 +167,27 @@ class Engine:
         transitions that do not fire (they write a variable the operator forced)."""
         before = state
         result = TickResult(state)
-        self._stage_operations(result, requested, disabled)
+        self._stage_operations(result, requested)
         self._stage_abilities(result, progress, disabled, blocked)
-        self._finish_operations(result)
+        # Stage 2's automatic transitions (tracking) may have made a goal or a requested operation's
+        # precondition hold. Waiting for the next tick would wait for a state change that may never
+        # come (nothing else is under way), so stage 1 runs again, with the automatics its start
+        # and finish actions enable, until neither changes anything.
+        held = self._held(disabled, blocked)
+        for _ in range(MAX_OPERATION_ROUNDS):
+            if not self._stage_operations(result, requested):
+                break
+            result.state, fired = self.compiled.close(result.state, held)
+            result.fired += [t.name for t in fired]
         result.changed_commands = {
             self.compiled.paths[i]: result.state[i] for i in self.command_indices if result.state[i] != before[i]
         }
         return result
 
     # --- stage 1 ----------------------------------------------------------------------
-    def _stage_operations(self, result: TickResult, requested: Sequence[str], disabled: frozenset[str]) -> None:
+    def _stage_operations(self, result: TickResult, requested: Sequence[str]) -> bool:
+        """Finish and start operations until none does; True if any did."""
+        any_progress = False
         for _ in range(MAX_OPERATION_ROUNDS):
             progressed = self._finish_operations(result)
             for name in requested:
@@ -183,7 +198,9 @@ class Engine:
                     result.started.append(name)
                     progressed = True
             if not progressed:
-                return
+                break
+            any_progress = True
+        return any_progress
 
     def _finish_operations(self, result: TickResult) -> bool:
         progressed = False
@@ -196,12 +213,24 @@ class Engine:
         return progressed
 
     # --- stage 2 ----------------------------------------------------------------------
-    def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str],
-                         blocked: frozenset[str]) -> None:
+    def _held(self, disabled: frozenset[str],
+              blocked: frozenset[str]) -> Callable[[CompiledTransition], bool] | None:
+        """What holds an ability transition back: an unhealthy resource (tracking excepted) or a force."""
+        if not disabled and not blocked:
+            return None
+
         def is_disabled(t: CompiledTransition) -> bool:
             return (bool(t.resources & disabled) and t.name not in self.tracking) or t.name in blocked
 
-        held = is_disabled if disabled or blocked else None
+        return is_disabled
+
+    def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str],
+                         blocked: frozenset[str]) -> None:
+        held = self._held(disabled, blocked)
+
+        def is_disabled(t: CompiledTransition) -> bool:
+            return held is not None and held(t)
+
         state, fired = self.compiled.close(result.state, held)
         result.fired += [t.name for t in fired]
         if progress is not None:

@@ -6,9 +6,11 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
 
-from common.config import ConfigError
-from common.model import ModelError, ParseError, parse_predicate
+from common.config import ConfigError, ConfigProblem, load_config, load_station
+from common.model import Model, ModelError, ParseError, parse_predicate
 
 from .models import DEFAULT_MODEL, ModelLoadError, load_model
 
@@ -70,16 +72,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.start:
         start.update(load_state(args.start, model))
     planner = Planner(compiled, supervisor.forbidden)
-    result = planner.plan(compiled.pack(start), goals, time_limit=args.time_limit)
+    from controller.planner import Budget
+
+    budget = Budget(first_expansions=10_000_000, improve_expansions=10_000_000, seconds=args.time_limit,
+                    improve_seconds=args.time_limit)
+    result = planner.plan(compiled.pack(start), goals, budget=budget)
     if isinstance(result, NoPlan):
         print(f"no plan: {result.reason}")
         if result.unreachable:
             print(f"  cannot be reached together: {', '.join(result.unreachable)}")
         return 1
-    print(result.explain(compiled))
+    print(result.explain(compiled, synthesized=args.guards))
     stats = result.stats
-    print(f"{len(result.steps)} steps, found in {stats.seconds * 1000:.1f} ms ({stats.method}, "
-          f"{stats.expanded} states expanded)")
+    first = (f"; first plan ({stats.first_length} steps) in {stats.first_seconds * 1000:.1f} ms"
+             if stats.first_length >= 0 else "")
+    shortest = "a shortest plan" if stats.minimal else "not shown to be a shortest plan within the budget"
+    print(f"{len(result.steps)} steps, {shortest}: found in {stats.seconds * 1000:.1f} ms ({stats.method}, "
+          f"{stats.expanded} states expanded{first})")
     return 0
 
 
@@ -98,6 +107,25 @@ def _failures(items: list[str]) -> dict[str, float]:
     return result
 
 
+DEFAULT_CONFIG = "hubs.toml"
+
+
+def _station_model(args: argparse.Namespace) -> Model:
+    """The model `up --in-process` runs: `--model` if given, else the one `--config` names.
+
+    Without either, ./hubs.toml's model, or the reference station where there is no
+    hubs.toml (run from outside a station's directory)."""
+    if args.model is not None:
+        return load_model(args.model)
+    if args.config is None and not Path(DEFAULT_CONFIG).is_file():
+        return load_model(DEFAULT_MODEL)
+    path = Path(args.config or DEFAULT_CONFIG)
+    if not path.is_file():
+        raise ConfigError([ConfigProblem(str(path), None, "", "no such file (--config)")])
+    _, model = load_station(path)
+    return model
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     failure = _failures(args.failure)
     if args.fail_rate:
@@ -105,15 +133,27 @@ def cmd_up(args: argparse.Namespace) -> int:
     if not args.in_process:
         from .station import Options, up
 
-        return up(Options(config=args.config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
+        config = args.config or DEFAULT_CONFIG
+        if not Path(config).is_file():
+            return _fail(f"{config}: no such file (--config)")
+        if args.model is not None:
+            # Every process loads the model its hubs.toml names: one given here could not reach them.
+            named = load_config(config).station.model
+            if args.model != named:
+                return _fail(f"--model {args.model}: `up` runs the model {config} names ({named}); give the model "
+                             f"in that file's [station] model, or use --in-process")
+        return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold))
+    from controller.control import VIRTUAL_BUDGET
+
     from .local import run_in_process
 
-    model = load_model(args.model)
+    model = _station_model(args)
     print(f"statehub: running station {model.name} in one process, emulated devices "
           f"(speed x{args.speed}, seed {args.seed})", flush=True)
+    budget = replace(VIRTUAL_BUDGET, first_expansions=args.plan_expansions, improve_expansions=args.improve_expansions)
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None, realtime=args.realtime,
-                             report=lambda line: print(line, flush=True))
+                             report=lambda line: print(line, flush=True), budget=budget)
     print()
     print(f"{'finished' if summary.finished else 'NOT finished'}: {summary.operations_finished}/"
           f"{summary.operations_total} operations, {summary.abilities} abilities started, {summary.plans} plans, "
@@ -192,8 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
         return value
 
     modes = ("emulate", "sim", "real")
-    up = with_config(with_model(sub.add_parser(
-        "up", help="run the whole station on this machine (controller and every hub as processes) to completion")))
+    up = sub.add_parser(
+        "up", help="run the whole station on this machine (controller and every hub as processes) to completion")
+    # No defaults here: whether --config or --model was given decides which model runs (_station_model).
+    up.add_argument("--model", help="station model as module:function (default: the one --config names; "
+                                    "with --in-process it wins over --config)")
+    up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
     up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
     up.add_argument("--mode", choices=modes, help="run every device in this mode (default: as in hubs.toml)")
@@ -207,6 +251,11 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")
+    up.add_argument("--plan-expansions", type=int, default=20_000, metavar="N",
+                    help="with --in-process: states the first-plan search may expand per request (default 20000)")
+    up.add_argument("--improve-expansions", type=int, default=0, metavar="N",
+                    help="with --in-process: states A* may expand looking for a shorter plan than the first "
+                         "(default 0: keep the first plan, the quickest run)")
     up.set_defaults(func=cmd_up)
 
     hub = with_config(sub.add_parser("hub", help="run one hub of hubs.toml (what its systemd unit runs)"))
@@ -251,7 +300,10 @@ def build_parser() -> argparse.ArgumentParser:
     plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
     plan.add_argument("goal", nargs="+", help="an operation name or a predicate, e.g. 'engine.bolt7_e == tightened'")
     plan.add_argument("--from", dest="start", help="TOML file of variable values to start from")
-    plan.add_argument("--time-limit", type=float, default=30.0)
+    plan.add_argument("--time-limit", type=float, default=30.0,
+                      help="seconds for the first plan, and again for a shorter one (default 30)")
+    plan.add_argument("--guards", action="store_true",
+                      help="print each step's synthesized guard in full instead of naming its specifications")
     plan.set_defaults(func=cmd_plan)
 
     check = with_model(sub.add_parser("check", help="validate the model and every operation's reachability"))

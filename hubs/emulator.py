@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from common.model import Model, Transition, TransitionKind, Value, apply_all
 
 # Seconds an effect takes at speed 1, by device type: the operator is slower than the robot.
+# A device type of a station's own says its delay in its resource model
+# (`parameters["emulated_delay"]`), else it gets FALLBACK_DELAY.
 DEFAULT_DELAYS: dict[str, float] = {
     "nutrunner": 0.12,
     "ur": 0.15,
@@ -73,8 +75,11 @@ class EffectEmulator:
         resource = next(iter(t.written())).split(".", 1)[0]
         if resource in self.delays:
             return self.delays[resource] / self.speed
-        device_type = self.model.resource_by_name[resource].device_type
-        return DEFAULT_DELAYS.get(device_type, FALLBACK_DELAY) / self.speed
+        spec = self.model.resource_by_name[resource]
+        own = spec.parameters.get("emulated_delay")
+        if isinstance(own, int | float) and not isinstance(own, bool) and own >= 0:
+            return float(own) / self.speed
+        return DEFAULT_DELAYS.get(spec.device_type, FALLBACK_DELAY) / self.speed
 
     def _choose(self, t: Transition) -> int:
         if len(t.outcomes) == 1:

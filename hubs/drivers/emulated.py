@@ -104,9 +104,14 @@ class EmulatedDriver(Driver):
 
     def safe_state(self) -> dict[str, Value]:
         # As docs/resource-contract.md says for the real devices; the rest keep their value
-        # (a robot holds its pose, a tool changer never drops its tool).
-        device_type = self.model.resource_by_name[self.resource].device_type
-        return dict(SAFE_STATES.get(device_type, {}))
+        # (a robot holds its pose, a tool changer never drops its tool). A device type of the
+        # station's own names its safe state in its model (`parameters["safe_state"]`, by
+        # command name): statehub cannot guess that a conveyor stops but a gripper holds.
+        spec = self.model.resource_by_name[self.resource]
+        if spec.device_type in SAFE_STATES:
+            return dict(SAFE_STATES[spec.device_type])
+        own = spec.parameters.get("safe_state", {})
+        return dict(own) if isinstance(own, Mapping) else {}
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
