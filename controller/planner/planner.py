@@ -24,6 +24,7 @@ from .plans import NoPlan, Plan, PlanStats, PlanStep
 from .portfolio import Budget, _Run
 from .relaxed import RelaxedModel
 from .steps import RaceCheck, StepSystem, stable_goal
+from .symbolic import SymbolicPlanner
 from .validate import PlanInvalid, check_plan, plan_from_moves
 
 MAX_SUBSET = 3  # "no plan" looks for an unreachable subset of at most this many goals, smallest first
@@ -63,6 +64,7 @@ class Planner:
         # and `revalidate`; a dict read or write is atomic, so the lock-free `revalidate` may use it.
         self._races: dict[frozenset[str], RaceCheck] = {}
         self._relaxed: dict[frozenset[str], RelaxedModel] = {}
+        self._symbolic: dict[frozenset[str], SymbolicPlanner] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
 
@@ -92,9 +94,13 @@ class Planner:
             found = self._relaxed[disabled] = RelaxedModel(self._system(disabled))
         return found
 
-    def symbolic(self, disabled: frozenset[str]) -> None:
-        """The symbolic member for this set of disabled resources (None: not available)."""
-        return None
+    def symbolic(self, disabled: frozenset[str]) -> SymbolicPlanner | None:
+        """The symbolic member for this set of disabled resources, built on first use (its BDD encoding
+        takes a few hundred milliseconds; it is asked only when greedy and A* settled nothing)."""
+        found = self._symbolic.get(disabled)
+        if found is None:
+            found = self._symbolic[disabled] = SymbolicPlanner(self.compiled, self.forbidden, disabled)
+        return found
 
     def goal_test(self, goal: Predicate) -> Callable[[State], bool]:
         is_goal = self._predicates.get(goal)
@@ -135,6 +141,7 @@ class Planner:
         with self._lock:
             self._systems.clear()
             self._relaxed.clear()
+            self._symbolic.clear()
             self._abstractions.clear()
             self._heuristics.clear()
 

@@ -324,7 +324,7 @@ class _Run:
         if found.moves is not None:
             return self._plan(found.moves, "symbolic", True, is_goal)
         if found.proven_unreachable:
-            return self._unreachable(f"unreachable (symbolic search: every state within {found.layers} steps)")
+            return self._unreachable(f"unreachable (symbolic search: {found.reason or 'no state left to explore'})")
         return None
 
     # --- no plan -------------------------------------------------------------------------------
