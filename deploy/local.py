@@ -53,6 +53,7 @@ def run_in_process(
     guards = synthesize(model)
     compiled = CompiledModel(model, guards.guards)
     planner = Planner(compiled, guards.forbidden)
+    planner.prepare()  # the model tables, before the first request, as the controller's planner process
     now = 0.0
     core = ControlCore(compiled, planner, clock=lambda: now, budget=budget)
     core.request(*(op.name for op in model.operations))
