@@ -23,8 +23,8 @@ from common.model.compiled import State
 
 from .abstraction import INF
 from .relaxed import Estimate
-from .search import SearchResult
-from .steps import Move, StateTest, StepSystem
+from .search import AUTOMATICS_AT_START, SearchResult
+from .steps import Move, StateTest, StepSystem, Successor, settle
 
 BOOST = 1000  # expansions from the preferred list after each new best h
 CHECK_EVERY = 8  # an expansion evaluates a relaxed plan (milliseconds): look at the clock often
@@ -42,16 +42,12 @@ def greedy(
     stop: Callable[[], bool] | None = None,
 ) -> SearchResult:
     """Some move sequence from `start` (not forbidden, not a goal) to a goal state, or why none was found."""
-    prefix: list[Move] = []
-    root = start
-    if system.first_automatic(start) is not None:
-        forced = system.chain(start, [], None, goal, forbidden)
-        if forced is None:
-            return SearchResult(None, reason="the automatic transitions due at the start enter a forbidden "
-                                             "state or never stop")
-        if forced.goal:
-            return SearchResult(list(forced.moves))
-        root, prefix = forced.state, list(forced.moves)
+    settled = settle(system, start, goal, forbidden)
+    if settled is None:
+        return SearchResult(None, reason=AUTOMATICS_AT_START)
+    if isinstance(settled, Successor):
+        return SearchResult(list(settled.moves))
+    root, prefix = settled
     parent: dict[State, tuple[State, tuple[Move, ...]] | None] = {}
     # entries: (h of the parent, order, state, its parent link)
     Entry = tuple[int, int, State, tuple[State, tuple[Move, ...]] | None]

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 from common.model.compiled import State
 
 from .abstraction import INF
-from .steps import Move, StateTest, StepSystem
+from .steps import Move, StateTest, StepSystem, Successor, settle
 
 TIME_CHECK_EVERY = 256
+AUTOMATICS_AT_START = "the automatic transitions due at the start enter a forbidden state or never stop"
 
 
 @dataclass
@@ -50,17 +51,12 @@ def astar(
     then means no plan shorter than the bound exists. `max_expansions` bounds the work
     deterministically; `deadline` (perf_counter) and `stop` (a newer request) end it early.
     """
-    prefix: list[Move] = []
-    root = start
-    if system.first_automatic(start) is not None:
-        # The start is not stable: the automatics fire first whatever the plan.
-        forced = system.chain(start, [], None, goal, forbidden)
-        if forced is None:
-            return SearchResult(None, reason="the automatic transitions due at the start enter a forbidden "
-                                             "state or never stop")
-        if forced.goal:
-            return SearchResult(list(forced.moves))
-        root, prefix = forced.state, list(forced.moves)
+    settled = settle(system, start, goal, forbidden)
+    if settled is None:
+        return SearchResult(None, reason=AUTOMATICS_AT_START)
+    if isinstance(settled, Successor):
+        return SearchResult(list(settled.moves))
+    root, prefix = settled
     prepare = getattr(heuristic, "prepare", None)
     if prepare is not None:
         prepare(root)

@@ -209,3 +209,17 @@ def stable_goal(compiled: CompiledModel, is_goal: StateTest, disabled: frozenset
         return is_goal(state) and not any(t.guard(state) for t in automatic)
 
     return test
+
+
+def settle(system: StepSystem, start: State, goal: StateTest,
+           forbidden: StateTest | None) -> tuple[State, list[Move]] | Successor | None:
+    """Where a search begins: a start that is not stable fires its automatics first whatever the plan.
+    Returns (the stable root, the moves to it); or a Successor whose `goal` is set when those automatics
+    already reach the goal; or None when they enter a forbidden state or never stop."""
+    if system.first_automatic(start) is None:
+        return start, []
+    forced = system.chain(start, [], None, goal, forbidden)
+    if forced is None or forced.goal:
+        return forced
+    return forced.state, list(forced.moves)
+
