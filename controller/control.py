@@ -97,8 +97,13 @@ def solve_goals(planner: Planner, request: PlanRequest, budget: Budget) -> tuple
     return best
 
 
-def live_budget(first_seconds: float = 3.0, improve_seconds: float = 10.0, hold_seconds: float = 0.15,
-                stop: Callable[[], bool] | None = None) -> Budget:
+FIRST_ANSWER_S = 3.0  # the satisficing member's wall-clock limit (it answers well inside it)
+IMPROVE_S = 10.0  # then A* and the symbolic member, unless a newer request comes
+HOLD_S = 0.15  # a warm A* may replace the first answer by a shortest plan this soon
+
+
+def live_budget(first_seconds: float = FIRST_ANSWER_S, improve_seconds: float = IMPROVE_S,
+                hold_seconds: float = HOLD_S, stop: Callable[[], bool] | None = None) -> Budget:
     """Wall-clock limits for a live controller: the satisficing member answers well inside `first_seconds`."""
     return Budget(first_expansions=1_000_000, improve_expansions=1_000_000, symbolic_layers=100_000,
                   seconds=first_seconds, improve_seconds=improve_seconds, hold_seconds=hold_seconds, stop=stop)

@@ -18,7 +18,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
-from .control import PlanRequest, anytime_answers, live_budget
+from .control import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, PlanRequest, anytime_answers, live_budget
 from .planner import NoPlan, Plan, Planner
 
 log = logging.getLogger(__name__)
@@ -26,9 +26,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Limits:
-    first_seconds: float = 3.0  # the satisficing member's wall-clock limit (it answers well inside it)
-    improve_seconds: float = 10.0  # then A* and the symbolic member, unless a newer request comes
-    hold_seconds: float = 0.15  # a warm A* may replace the first answer by a shortest plan this soon
+    first_seconds: float = FIRST_ANSWER_S
+    improve_seconds: float = IMPROVE_S
+    hold_seconds: float = HOLD_S
 
 
 @dataclass(frozen=True)

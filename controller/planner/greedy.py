@@ -23,7 +23,7 @@ from common.model.compiled import State
 
 from .abstraction import INF
 from .relaxed import Estimate
-from .search import AUTOMATICS_AT_START, SearchResult
+from .search import AUTOMATICS_AT_START, Parents, SearchResult, path_to
 from .steps import Move, StateTest, StepSystem, Successor, settle
 
 BOOST = 1000  # expansions from the preferred list after each new best h
@@ -48,7 +48,7 @@ def greedy(
     if isinstance(settled, Successor):
         return SearchResult(list(settled.moves))
     root, prefix = settled
-    parent: dict[State, tuple[State, tuple[Move, ...]] | None] = {}
+    parent: Parents = {}
     # entries: (h of the parent, order, state, its parent link)
     Entry = tuple[int, int, State, tuple[State, tuple[Move, ...]] | None]
     lists: tuple[list[Entry], list[Entry]] = ([], [])  # preferred, all
@@ -58,7 +58,6 @@ def greedy(
     priority = 0  # > 0: take from the preferred list
     turn = 0
     expanded = generated = 0
-    dead_ends = 0
     pop, push = heapq.heappop, heapq.heappush
     while lists[0] or lists[1]:
         if lists[0] and (priority > 0 or not lists[1] or turn % 2 == 0):
@@ -73,7 +72,6 @@ def greedy(
         parent[state] = link
         estimate = evaluate(state)
         if estimate.h >= INF:
-            dead_ends += 1
             continue
         expanded += 1
         if expanded > max_expansions or (expanded % CHECK_EVERY == 0 and (
@@ -86,12 +84,7 @@ def greedy(
         for succ in system.successors(state, goal, forbidden):
             generated += 1
             if succ.goal:
-                moves = list(succ.moves)
-                back = state
-                while (up := parent[back]) is not None:
-                    back, steps = up
-                    moves[:0] = steps
-                return SearchResult(prefix + moves, expanded, generated)
+                return SearchResult(prefix + path_to(parent, state, succ.moves), expanded, generated)
             if succ.state in parent:
                 continue
             order += 1
@@ -99,5 +92,6 @@ def greedy(
             if succ.moves[0] in preferred:
                 push(lists[0], entry)
             push(lists[1], entry)
-    reason = "exhausted" if dead_ends == 0 or expanded else "heuristic"
+    # Nothing expanded: the root itself is a dead end of the relaxation.
+    reason = "exhausted" if expanded else "heuristic"
     return SearchResult(None, expanded, generated, reason=reason)

@@ -1,4 +1,5 @@
-"""The online planner: shortest plans to a conjunction of named goals, by A* with projection heuristics.
+"""The online planner: plans to a conjunction of named goals, by the portfolio of `portfolio.py` (a first
+plan from greedy search, shorter ones from A* with projection heuristics, the symbolic member last).
 
 Semantics (those of the engine, see `steps`): plans are made of ability transitions
 (operation transitions are stage 1's, never planned); automatic ones are urgent and
@@ -20,7 +21,7 @@ from common.model.compiled import CompiledModel, State
 
 from .abstraction import Abstraction
 from .heuristics import GoalHeuristic, HeuristicOptions
-from .plans import NoPlan, Plan, PlanStats, PlanStep
+from .plans import NoPlan, Plan, PlanStats, PlanStep, moves_of
 from .portfolio import Budget, _Run
 from .relaxed import RelaxedModel
 from .steps import RaceCheck, StepSystem, stable_goal
@@ -30,11 +31,6 @@ from .validate import PlanInvalid, check_plan, plan_from_moves
 MAX_SUBSET = 3  # "no plan" looks for an unreachable subset of at most this many goals, smallest first
 HEURISTIC_CACHE = 128
 ABSTRACTION_CACHE = 96
-
-
-def _short(predicate: Predicate, limit: int = 160) -> str:
-    text = str(predicate)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 class Planner:
@@ -189,8 +185,8 @@ class Planner:
         None. Takes no lock (it reads only the race checks' dict), so it may run beside a search in another thread."""
         began = time.perf_counter()
         compiled = self.compiled
-        is_goal = stable_goal(compiled, compiled.predicate(all_of(*goals.values())), disabled)
-        moves = [(compiled.by_name[step.transition].number, step.outcome) for step in steps]
+        is_goal = stable_goal(compiled, self.goal_test(all_of(*goals.values())), disabled)
+        moves = moves_of(compiled, steps)
         plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
         try:
             check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -33,6 +34,11 @@ class PlanStep:
             guard += (f" && [{self.synthesized}]" if synthesized
                       else f"  (and the supervisor's guard for: {', '.join(self.held_by)})")
         return f"{self.transition} [{self.kind.value}] when {guard} -> {self.actions}"
+
+
+def moves_of(compiled: CompiledModel, steps: Iterable[PlanStep]) -> list[tuple[int, int]]:
+    """Steps back as (transition number, outcome) moves, what the searches and `plan_from_moves` use."""
+    return [(compiled.by_name[step.transition].number, step.outcome) for step in steps]
 
 
 @dataclass(frozen=True)

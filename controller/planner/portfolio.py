@@ -28,7 +28,7 @@ from common.model.compiled import State
 
 from .abstraction import INF
 from .greedy import greedy
-from .plans import NoPlan, Plan, PlanStats
+from .plans import NoPlan, Plan, PlanStats, moves_of
 from .search import SearchResult, astar
 from .steps import Move, stable_goal
 from .validate import PlanInvalid, check_plan, plan_from_moves
@@ -144,8 +144,7 @@ class _Run:
                     yield better
                     return
             yield incumbent
-            moves = [(self.planner.compiled.by_name[step.transition].number, step.outcome)
-                     for step in incumbent.steps]
+            moves = moves_of(self.planner.compiled, incumbent.steps)
             shorter = self._eliminate(moves, is_goal, ELIMINATION_MORE)
             if len(shorter) < len(moves):
                 plan = self._plan(shorter, "greedy", False, is_goal)

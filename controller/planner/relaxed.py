@@ -18,7 +18,7 @@ model's own guards and actions are all it reads.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from common.model import Predicate
@@ -115,12 +115,22 @@ class _Encoder:
     def failing(self, conjuncts: Sequence[Node]) -> Callable[[list[int]], list[int]]:
         """One generated function listing the conjuncts that do not hold: the relaxed plan needs
         achievers only for those, and most of a synthesized guard holds where it is asked."""
-        lines = ["def failing(r):", "    out = []"]
-        lines += [f"    if not ({self.source(c)}): out.append({k})" for k, c in enumerate(conjuncts)]
-        lines.append("    return out")
-        namespace: dict[str, object] = {}
-        exec("\n".join(lines), namespace)
-        return namespace["failing"]  # type: ignore[return-value]
+        return _define(self.failing_source("failing", conjuncts))["failing"]  # type: ignore[return-value]
+
+    def failing_source(self, name: str, conjuncts: Sequence[Node]) -> list[str]:
+        return _listing(name, ((k, f"not ({self.source(c)})") for k, c in enumerate(conjuncts)))
+
+
+def _listing(name: str, conditions: Iterable[tuple[int, str]]) -> list[str]:
+    """The source of `name(r)`: the numbers whose condition holds, in order."""
+    return [f"def {name}(r):", "    out = []", *(f"    if {c}: out.append({k})" for k, c in conditions),
+            "    return out"]
+
+
+def _define(lines: Sequence[str]) -> dict[str, Callable[[list[int]], object]]:
+    namespace: dict[str, Callable[[list[int]], object]] = {}
+    exec("\n".join(lines), namespace)  # generated from the model's own predicates
+    return namespace
 
 
 def conjuncts_of(node: Node) -> tuple[Node, ...]:
@@ -157,11 +167,11 @@ class RelaxedModel:
         lines = []
         for number, (guard, conjuncts) in guards.items():
             lines.append(f"def test_{number}(r): return {self.encoder.source(guard)}")
-            lines += [f"def failing_{number}(r):", "    out = []"]
-            lines += [f"    if not ({self.encoder.source(c)}): out.append({k})" for k, c in enumerate(conjuncts)]
-            lines.append("    return out")
-        namespace: dict[str, Callable[[list[int]], object]] = {}
-        exec("\n".join(lines), namespace)  # generated from the model's own predicates
+            lines += self.encoder.failing_source(f"failing_{number}", conjuncts)
+        # Layer 0 of an evaluation: the automatics whose guard holds (actions after the moves are automatics).
+        lines += _listing("automatic_ready", ((len(system.moves) + k, self.encoder.source(guards[t.number][0]))
+                                              for k, t in enumerate(system.automatic)))
+        namespace = _define(lines)
         actions: list[RelaxedAction] = []
         for t, o in moves:
             guard, conjuncts = guards[t.number]
@@ -182,14 +192,8 @@ class RelaxedModel:
         for a, action in enumerate(actions):
             for i in action.reads:
                 self.readers[i].append(a)
-        self.always = [a for a, action in enumerate(actions) if not action.reads]
         self.system = system
-        first_automatic = len(system.moves)
-        body = [f"    if {self.encoder.source(actions[a].guard)}: out.append({a})"
-                for a in range(first_automatic, len(actions))]
-        namespace2: dict[str, Callable[[list[int]], list[int]]] = {}
-        exec("\n".join(["def automatic_ready(r):", "    out = []", *body, "    return out"]), namespace2)
-        self.automatic_ready = namespace2["automatic_ready"]
+        self.automatic_ready: Callable[[list[int]], list[int]] = namespace["automatic_ready"]  # type: ignore[assignment]
         self.domains = [d.values for d in compiled.domains]
         # A state's value is always of its variable's domain, so a plain value key is exact here.
         self.value_bits: list[dict[object, int]] = [{v: 1 << k for k, v in enumerate(values)}

@@ -33,6 +33,18 @@ class SearchResult:
     reason: str = ""
 
 
+Parents = dict[State, tuple[State, tuple[Move, ...]] | None]
+
+
+def path_to(parent: Parents, state: State, last: tuple[Move, ...]) -> list[Move]:
+    """The moves from the search's root to `state` (along the parent links), then `last`."""
+    moves = list(last)
+    while (link := parent[state]) is not None:
+        state, steps = link
+        moves[:0] = steps
+    return moves
+
+
 def astar(
     system: StepSystem,
     start: State,
@@ -66,7 +78,7 @@ def astar(
     if len(prefix) + h0 >= bound:
         return SearchResult(None, reason="exhausted")
     best_g: dict[State, int] = {root: 0}
-    parent: dict[State, tuple[State, tuple[Move, ...]] | None] = {root: None}
+    parent: Parents = {root: None}
     h_of: dict[State, int] = {root: h0}
     counter = 0
     heap: list[tuple[int, int, int, State, tuple[State, tuple[Move, ...]] | None]] = [(h0, 0, 0, root, None)]
@@ -78,12 +90,7 @@ def astar(
     while heap:
         _, negative_g, _, state, terminal = pop(heap)
         if terminal is not None:
-            moves = list(terminal[1])
-            state = terminal[0]
-            while (link := parent[state]) is not None:
-                state, steps = link
-                moves[:0] = steps
-            return SearchResult(prefix + moves, expanded, generated)
+            return SearchResult(prefix + path_to(parent, *terminal), expanded, generated)
         g = -negative_g
         if g > best_g[state]:
             continue  # a stale entry: reached more cheaply since
