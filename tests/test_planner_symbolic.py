@@ -17,7 +17,7 @@ from common.model import Model, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
 from common.stations import synthetic
 from controller.planner import NoPlan, Plan, Planner, breadth_first
-from controller.planner import symbolic as symbolic_module
+from controller.planner import symbolic_encoding as symbolic_module
 from controller.planner.bfs import micro_steps
 from controller.planner.plans import PlanStats
 from controller.planner.steps import RaceCheck, stable_goal

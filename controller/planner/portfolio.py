@@ -23,13 +23,14 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from common.model import Predicate, TransitionKind, all_of
+from common.model import Predicate, all_of
 from common.model.compiled import State
 
 from .abstraction import INF
 from .greedy import greedy
 from .plans import NoPlan, Plan, PlanStats, moves_of
 from .search import SearchResult, astar
+from .shorten import eliminate, without_loops
 from .steps import Move, stable_goal
 from .validate import PlanInvalid, check_plan, plan_from_moves
 
@@ -145,7 +146,7 @@ class _Run:
                     return
             yield incumbent
             moves = moves_of(self.planner.compiled, incumbent.steps)
-            shorter = self._eliminate(moves, is_goal, ELIMINATION_MORE)
+            shorter = self._shortened(moves, is_goal, start, ELIMINATION_MORE)
             if len(shorter) < len(moves):
                 plan = self._plan(shorter, "greedy", False, is_goal)
                 if isinstance(plan, Plan):
@@ -168,69 +169,12 @@ class _Run:
                      f"{time.perf_counter() - self.began:.1f} s); not shown unreachable, retried later"
                      + self._disabled_note(), (), self._stats("portfolio"))
 
-    def _without_loops(self, moves: list[Move]) -> list[Move]:
-        """The moves minus every stretch that comes back to a state it passed (a greedy detour: the robot
-        sent somewhere and back before the door opens). What is left passes the same states in the same
-        order, so it is as valid as the whole; the plan check confirms it."""
-        transitions = self.planner.compiled.transitions
-        kept: list[Move] = []
-        state = self.start
-        seen = {state: 0}
-        for number, outcome in moves:
-            state = transitions[number].outcomes[outcome](state)
-            back = seen.get(state)
-            if back is not None:
-                del kept[back:]
-                seen = {s: i for s, i in seen.items() if i <= back}
-                continue
-            kept.append((number, outcome))
-            seen[state] = len(kept)
-        return kept
-
-    def _eliminate(self, moves: list[Move], is_goal: Callable[[State], bool], work: int) -> list[Move]:
-        """Action elimination (Nakhost & Müller): drop a step and every later step that can no longer fire;
-        keep the shorter plan if it still reaches the goals under the engine's semantics. Greedy plans
-        carry detours (the robot sent above the infeed before the door opens); this removes those the
-        relaxed plan put in. `work` bounds the simulated steps (a count: the same answer on any machine)."""
+    def _shortened(self, moves: list[Move], is_goal: Callable[[State], bool], start: State,
+                   work: int = ELIMINATION_FIRST) -> list[Move]:
+        """A greedy plan minus its loops, then minus the detours action elimination finds."""
         planner = self.planner
-        system = planner._system(self.disabled)
-        transitions = planner.compiled.transitions
-        forbidden = planner._is_forbidden
-        race = system.race
-
-        def replay(state: State, rest: list[Move]) -> tuple[list[Move], State, int] | None:
-            kept: list[Move] = []
-            for number, outcome in rest:
-                t = transitions[number]
-                due = system.first_automatic(state)
-                if due is not None and due is not t:
-                    return None  # an automatic would fire first: dropping the step broke the chain
-                if not t.guard(state) or (t.kind is TransitionKind.DELIBERATE and race.races(state, t)):
-                    continue
-                after = t.outcomes[outcome](state)
-                if forbidden is not None and forbidden(after):
-                    return None
-                kept.append((number, outcome))
-                state = after
-            return kept, state, len(rest)
-
-        i = 0
-        while i < len(moves) and work > 0:
-            state = self.start
-            for number, outcome in moves[:i]:
-                state = transitions[number].outcomes[outcome](state)
-            if transitions[moves[i][0]].kind is not TransitionKind.DELIBERATE:
-                i += 1
-                continue
-            tried = replay(state, moves[i + 1:])
-            work -= len(moves) - i
-            if tried is not None and is_goal(tried[1]) and system.first_automatic(tried[1]) is None:
-                shorter = moves[:i] + tried[0]
-                if len(shorter) < len(moves):
-                    moves = shorter
-                    continue
-            i += 1
-        return moves
+        return eliminate(planner._system(self.disabled), without_loops(planner.compiled, moves, start), start,
+                         is_goal, planner._is_forbidden, work)
 
     def _agenda(self, expansions: int, deadline: float | None) -> list[Move] | None:
         """The goals one after another (FF's goal agenda): each search keeps the goals reached so far and
@@ -266,7 +210,7 @@ class _Run:
             before = self.expanded
             moves = self._agenda(expansions // 2, deadline)
             if moves is not None:
-                moves = self._eliminate(self._without_loops(moves), is_goal, ELIMINATION_FIRST)
+                moves = self._shortened(moves, is_goal, self.start)
                 return self._plan(moves, "greedy", False, is_goal), None
             expansions -= self.expanded - before
         system = planner._system(self.disabled)
@@ -275,7 +219,7 @@ class _Run:
                        max_expansions=expansions, deadline=deadline, stop=self.budget.stop)
         self._count(found)
         if found.moves is not None:
-            moves = self._eliminate(self._without_loops(found.moves), is_goal, ELIMINATION_FIRST)
+            moves = self._shortened(found.moves, is_goal, self.start)
             return self._plan(moves, "greedy", False, is_goal), None
         if found.timed_out:
             return None, None

@@ -29,7 +29,8 @@ from common.stations import synthetic
 from controller.planner import Plan, Planner
 from controller.planner.plans import PlanStats
 from controller.planner.steps import RaceCheck, stable_goal
-from controller.planner.symbolic import BACKEND, SymbolicPlanner
+from controller.planner.symbolic import SymbolicPlanner
+from controller.planner.symbolic_encoding import BACKEND
 from controller.planner.validate import check_plan, plan_from_moves
 
 
