@@ -50,7 +50,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from controller.planner import NoPlan, Planner
     from controller.synthesis import synthesize
 
-    from .statefile import load_state
+    from .local.statefile import load_state
 
     model = load_model(args.model)
     supervisor = synthesize(model)
@@ -131,7 +131,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.fail_rate:
         failure.setdefault("nr", args.fail_rate)
     if not args.in_process:
-        from .station import Options, up
+        from .local.station import Options, up
 
         config = args.config or DEFAULT_CONFIG
         if not Path(config).is_file():
@@ -146,7 +146,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold))
     from controller.control import VIRTUAL_BUDGET
 
-    from .local import run_in_process
+    from .local.inprocess import run_in_process
 
     model = _station_model(args)
     print(f"statehub: running station {model.name} in one process, emulated devices "
@@ -309,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
     check = with_model(sub.add_parser("check", help="validate the model and every operation's reachability"))
     check.set_defaults(func=cmd_check)
 
-    from .commands import register_deploy_commands
+    from .remote.cli import register_deploy_commands
 
     register_deploy_commands(sub)
 
@@ -330,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         from controller.synthesis import SynthesisError
 
-        from .statefile import StateFileError
+        from .local.statefile import StateFileError
 
         if isinstance(exc, SynthesisError | StateFileError):
             return _fail(str(exc))

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from common.config import StationConfig, load_config
-from deploy.commands import register_deploy_commands
+from deploy.remote.cli import register_deploy_commands
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -22,7 +22,7 @@ class Run:
 
 
 def hubctl(*argv: str) -> Run:
-    """`hubctl ARGV` with only the commands of deploy/commands.py (independent of cli.py's wiring)."""
+    """`hubctl ARGV` with only the commands of deploy/remote/cli.py (independent of cli.py's wiring)."""
     parser = argparse.ArgumentParser(prog="hubctl")
     register_deploy_commands(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(list(argv))

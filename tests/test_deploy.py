@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 from deploy_support import REPO, Run, hubctl, station_toml
 
-from deploy.wheel import Wheel, build_wheel
+from deploy.remote.wheel import Wheel, build_wheel
 
 pytestmark = pytest.mark.timeout(120)  # a hung ssh must not hang the suite
 

@@ -17,9 +17,9 @@ from deploy_support import REPO, station_toml
 from common.bus import Bus, Keys, Request, zenoh_config, zenoh_config_for
 from common.config import parse_config
 from common.messages import encode
-from deploy.deploy import Waiting, wait_step
-from deploy.hubwait import HubWaitError, HubWatch, watch_config, watch_endpoints
-from deploy.progress import Progress, StepFailed
+from deploy.remote.deploy import Waiting, wait_step
+from deploy.remote.hubwait import HubWaitError, HubWatch, watch_config, watch_endpoints
+from deploy.remote.progress import Progress, StepFailed
 from hubs.drivers.base import SelftestReport
 from hubs.selftest import report_message
 

@@ -15,7 +15,7 @@ from controller.planner import Budget, NoPlan, Plan, Planner, validate_plan
 from controller.planner.relaxed import RelaxedModel
 from controller.planner.steps import StepSystem
 from controller.synthesis import synthesize
-from deploy.statefile import load_state
+from deploy.local.statefile import load_state
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,7 +117,7 @@ def test_same_seed_same_run_whatever_the_hash_seed() -> None:
     """Search work is counted, not timed, and nothing iterates in hash order: two interpreters with
     different string hashing plan the same run."""
     script = ("from common.stations import synthetic\n"
-              "from deploy.local import run_in_process\n"
+              "from deploy.local.inprocess import run_in_process\n"
               "lines = []\n"
               "s = run_in_process(synthetic.build_model(8), seed=3, report=lines.append)\n"
               "print('\\n'.join(lines)); print(s.finished, s.plans, s.replans, s.emulated_seconds)\n")

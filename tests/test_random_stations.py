@@ -2,7 +2,7 @@
 
 Stations come from `common.stations.random_station.build_random_station(seed)` (standard
 device templates, random operations and forbidden zones); each run is the in-process
-controller against the model's own effects in virtual time (`deploy.local.run_in_process`),
+controller against the model's own effects in virtual time (`deploy.local.inprocess.run_in_process`),
 the nutrunner failing now and then. A station that does not finish must have an
 operation the planner shows unreachable (`controller.planner.check_operations`);
 otherwise the failure names the seed that rebuilds it.
@@ -18,7 +18,7 @@ from common.model.compiled import CompiledModel
 from common.stations.random_station import build_random_station
 from controller.planner import Planner, check_operations
 from controller.synthesis import synthesize
-from deploy.local import run_in_process
+from deploy.local.inprocess import run_in_process
 
 SEEDS = st.integers(min_value=0, max_value=2**31 - 1)
 

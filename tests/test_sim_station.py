@@ -26,8 +26,8 @@ import pytest
 
 from common.config import load_station
 from common.stations import engine_assembly as ea
-from deploy.simworld import SimWorld
-from deploy.station import Options, run_station
+from deploy.local.simworld import SimWorld
+from deploy.local.station import Options, run_station
 from hubs.factory import build_drivers, load_overrides
 from hubs.sim.cell import Walker
 from hubs.sim.toolchanger_modbus import TOOLS, ToolChangerPhysics

@@ -25,8 +25,8 @@ from common.resources import nutrunner, ur
 from common.stations import machine_tending, shared_workspace
 from controller.engine import Engine
 from deploy.cli import main as hubctl
-from deploy.local import run_in_process
-from deploy.station import Options, run_station
+from deploy.local.inprocess import run_in_process
+from deploy.local.station import Options, run_station
 from hubs.factory import build_drivers, effective_mode
 
 ROOT = Path(__file__).resolve().parent.parent

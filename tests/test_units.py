@@ -18,8 +18,8 @@ import pytest
 from deploy_support import hubctl, station_toml
 
 from common.config import parse_config
-from deploy.layout import Layout
-from deploy.units import (
+from deploy.remote.layout import Layout
+from deploy.remote.units import (
     BACKOFF_SYSTEMD,
     DEFAULT_SYSTEMD,
     controller_unit,

@@ -43,7 +43,7 @@ from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
 from controller.planner.search import astar
 from controller.planner.steps import stable_goal
 from controller.synthesis import synthesize
-from deploy.statefile import load_state
+from deploy.local.statefile import load_state
 
 HERE = Path(__file__).resolve().parent
 OTHER_STATIONS = ("common.stations.machine_tending:build_model", "common.stations.shared_workspace:build_model")
@@ -257,7 +257,7 @@ def synthetic_cases(sizes: list[int]) -> list[Case]:
 
 # --- 2. goal sets asked during runs ----------------------------------------------------------------
 def bench_runs(runs: int) -> None:
-    from deploy.local import run_in_process
+    from deploy.local.inprocess import run_in_process
 
     firsts: list[float] = []
     first_minimal = shown_minimal = requests = 0

@@ -36,7 +36,7 @@ def run_one(model_reference: str, seed: int, fail_rate: float,
     from dataclasses import replace
 
     from controller.control import VIRTUAL_BUDGET
-    from deploy.local import run_in_process
+    from deploy.local.inprocess import run_in_process
 
     model = load_model(model_reference)
     failure = {"nr": fail_rate} if fail_rate else None

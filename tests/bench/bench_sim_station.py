@@ -15,7 +15,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from deploy.station import Options, run_station  # noqa: E402
+from deploy.local.station import Options, run_station  # noqa: E402
 
 
 def main() -> int:

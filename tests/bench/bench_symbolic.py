@@ -78,7 +78,7 @@ def main() -> None:
                      all_of(*bolt7.goals.values()), args.repeats))
     start = robot_home.start
     if args.robothome:
-        from deploy.statefile import load_state
+        from deploy.local.statefile import load_state
 
         model = robot_home.compiled.model
         start = robot_home.compiled.pack({**model.initial_state(), **load_state(args.robothome, model)})

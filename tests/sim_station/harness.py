@@ -7,7 +7,7 @@
 
 The test's bus listens where the controller would (`--loopback-port`); every hub runs as
 `python -m deploy.cli hub NAME --mode sim --params-file ...`, as `hubctl up --mode sim`
-starts them, and the simulated world (`deploy.simworld`) couples the simulators through
+starts them, and the simulated world (`deploy.local.simworld`) couples the simulators through
 the same bus. Every measured value the hubs publish is recorded in order (no
 coalescing), so a test can compare a variable's trace with the model's effects.
 """
@@ -27,8 +27,8 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec, MessageError
 from common.model import Value
-from deploy.simworld import SimWorld
-from deploy.station import free_port
+from deploy.local.simworld import SimWorld
+from deploy.local.station import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND_PERIOD_S = 0.1

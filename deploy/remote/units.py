@@ -2,7 +2,7 @@
 
 One unit per hub (`statehub-hub-<hub>.service`) and one for the controller
 (`statehub-controller.service`). They run the release that `current` points at
-(deploy/layout.py), so switching a version is a symlink switch and a restart; the unit
+(deploy/remote/layout.py), so switching a version is a symlink switch and a restart; the unit
 text itself only changes when the hub's devices or this template change.
 
 Choices, each for a reason:

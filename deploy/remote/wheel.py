@@ -83,5 +83,5 @@ def build_wheel(project: Path, out: Path) -> Wheel:
 
 def default_source() -> Path:
     """The checkout this hubctl runs from (an editable install, `./dev`), else the working directory."""
-    here = Path(__file__).resolve().parent.parent
+    here = Path(__file__).resolve().parents[2]
     return here if (here / "pyproject.toml").is_file() else Path.cwd()

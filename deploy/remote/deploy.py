@@ -43,7 +43,7 @@ from . import scripts
 from .hubwait import DEFAULT_LISTEN, HubWaitError, HubWatch, watch_config
 from .layout import Layout, hub_unit_name
 from .progress import Progress, StepFailed
-from .remote import Remote, RemoteError, SshTarget, pack_files
+from .ssh import Remote, RemoteError, SshTarget, pack_files
 from .units import DEFAULT_SYSTEMD, hub_groups, hub_unit, parse_systemd_version
 from .wheel import SOURCE_DATE_EPOCH, Wheel, build_command, build_wheel, default_source, inspect_wheel
 

@@ -34,7 +34,7 @@ from .deploy import (
 )
 from .layout import Layout, hub_unit_name
 from .progress import Progress, StepFailed
-from .remote import Remote, RemoteError
+from .ssh import Remote, RemoteError
 
 ROLLBACK_STEPS = 5
 

@@ -31,7 +31,7 @@ for a hand-held task and badges in at the RFID reader when nobody is verified.
 
 Run it alone (e.g. for `hubctl selftest HUB --mode sim --params-file ...`)::
 
-    python -m deploy.simworld [--config hubs.toml] [--run-dir var/sim] [--speed S] [--loopback-port P]
+    python -m deploy.local.simworld [--config hubs.toml] [--run-dir var/sim] [--speed S] [--loopback-port P]
 """
 
 from __future__ import annotations
