@@ -9,8 +9,12 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from common.config import ConfigError, ConfigProblem, load_config, load_station
+from common.config import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
 from common.model import Model, ModelError, ParseError, parse_predicate
+from common.process import positive
+from controller import process as controller_process
+from hubs import process as hub_process
+from hubs.process import parse_failures
 
 from .models import DEFAULT_MODEL, ModelLoadError, load_model
 
@@ -92,21 +96,6 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-def _failures(items: list[str]) -> dict[str, float]:
-    result = {}
-    for item in items:
-        resource, _, value = item.partition("=")
-        try:
-            p = float(value)
-        except ValueError:
-            message = f"--failure {item!r}: expected RESOURCE=PROBABILITY, e.g. nr=0.1"
-            raise argparse.ArgumentTypeError(message) from None
-        if not 0.0 <= p <= 1.0:
-            raise argparse.ArgumentTypeError(f"--failure {item!r}: the probability must be within 0..1")
-        result[resource] = p
-    return result
-
-
 DEFAULT_CONFIG = "hubs.toml"
 
 
@@ -127,7 +116,7 @@ def _station_model(args: argparse.Namespace) -> Model:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    failure = _failures(args.failure)
+    failure = parse_failures(args.failure)
     if args.fail_rate:
         failure.setdefault("nr", args.fail_rate)
     if not args.in_process:
@@ -165,47 +154,6 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 0 if summary.finished else 1
 
 
-def _overrides(args: argparse.Namespace) -> dict[str, dict[str, object]] | None:
-    """The --params-file of `hub` and `selftest`: {resource: {parameter: value}}, merged into hubs.toml's."""
-    if not args.params_file:
-        return None
-    from hubs.factory import load_overrides
-
-    try:
-        return load_overrides(args.params_file)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def cmd_hub(args: argparse.Namespace) -> int:
-    import asyncio
-
-    from .processes import run_hub, setup_logging
-
-    setup_logging(args.name, args.verbose)
-    return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
-                               seed=args.seed, mode=args.mode, failure=_failures(args.failure),
-                               overrides=_overrides(args)))
-
-
-def cmd_controller(args: argparse.Namespace) -> int:
-    import asyncio
-
-    from .processes import run_controller, setup_logging
-
-    setup_logging("controller", args.verbose)
-    return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
-                                      mirror_wait_s=args.mirror_wait, hold=args.hold))
-
-
-def cmd_selftest(args: argparse.Namespace) -> int:
-    import asyncio
-
-    from .processes import run_selftest
-
-    return asyncio.run(run_selftest(args.config, args.name, mode=args.mode, overrides=_overrides(args)))
-
-
 def cmd_console(args: argparse.Namespace) -> int:
     from controller.console import run_console
 
@@ -225,13 +173,6 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
         return p
 
-    def positive(text: str) -> float:
-        value = float(text)
-        if value <= 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-        return value
-
-    modes = ("emulate", "sim", "real")
     up = sub.add_parser(
         "up", help="run the whole station on this machine (controller and every hub as processes) to completion")
     # No defaults here: whether --config or --model was given decides which model runs (_station_model).
@@ -240,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
     up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
-    up.add_argument("--mode", choices=modes, help="run every device in this mode (default: as in hubs.toml)")
+    up.add_argument("--mode", choices=DEVICE_MODES, help="run every device in this mode (default: as in hubs.toml)")
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
                     help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")
     up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")
@@ -258,34 +199,17 @@ def build_parser() -> argparse.ArgumentParser:
                          "(default 0: keep the first plan, the quickest run)")
     up.set_defaults(func=cmd_up)
 
-    hub = with_config(sub.add_parser("hub", help="run one hub of hubs.toml (what its systemd unit runs)"))
-    hub.add_argument("name", help="the hub, e.g. pi-tool")
-    hub.add_argument("--mode", choices=modes, help="override every device's mode")
-    hub.add_argument("--speed", type=positive, default=1.0, help="scale emulated delays")
-    hub.add_argument("--seed", type=int, default=0)
-    hub.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P")
-    hub.add_argument("--loopback-port", type=int, help="run on loopback, the controller listening on this port")
-    hub.add_argument("--params-file", metavar="FILE",
-                     help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
-    hub.add_argument("-v", "--verbose", action="store_true")
-    hub.set_defaults(func=cmd_hub)
+    hub = sub.add_parser("hub", help="run one hub of hubs.toml (what its systemd unit runs: python -m hubs)")
+    hub_process.add_arguments(hub)
+    hub.set_defaults(func=hub_process.serve)
 
-    ctl = with_config(sub.add_parser("controller", help="run the controller (what its systemd unit runs)"))
-    ctl.add_argument("--db", help="SQLite file of the persisted state (default: [controller] db)")
-    ctl.add_argument("--fresh", action="store_true", help="forget the persisted state first")
-    ctl.add_argument("--mirror-wait", type=positive, default=5.0, help="seconds to wait for the hubs' mirrors")
-    ctl.add_argument("--loopback-port", type=int, help="run on loopback, listening on this port")
-    ctl.add_argument("--hold", action="store_true",
-                     help="with no persisted requests, start no operation: the operator starts them from the console")
-    ctl.add_argument("-v", "--verbose", action="store_true")
-    ctl.set_defaults(func=cmd_controller)
+    ctl = sub.add_parser("controller", help="run the controller (what its systemd unit runs: python -m controller)")
+    controller_process.add_arguments(ctl)
+    ctl.set_defaults(func=controller_process.serve)
 
-    selftest = with_config(sub.add_parser("selftest", help="run a hub's self-test; exit 1 on a failure"))
-    selftest.add_argument("name", help="the hub, e.g. pi-tool")
-    selftest.add_argument("--mode", choices=modes, help="override every device's mode")
-    selftest.add_argument("--params-file", metavar="FILE",
-                          help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
-    selftest.set_defaults(func=cmd_selftest)
+    selftest = sub.add_parser("selftest", help="run a hub's self-test; exit 1 on a failure")
+    hub_process.add_selftest_arguments(selftest)
+    selftest.set_defaults(func=hub_process.selftest)
 
     console = with_config(sub.add_parser(
         "console", help="the operator console: watch and steer the running station (a terminal UI over Zenoh)"))

@@ -61,7 +61,7 @@ class HeldStation(Station):
     """The harness's station with the controller run as `hubctl controller --hold`: nothing starts by itself."""
 
     def start_controller(self, *, fresh: bool = True, mirror_wait: float = 5.0) -> Process:
-        argv = [sys.executable, "-m", "deploy.cli", "controller", "--config", str(self.config_path),
+        argv = [sys.executable, "-m", "controller", "--config", str(self.config_path),
                 "--loopback-port", str(self.port), "--db", str(self.db), "--mirror-wait", str(mirror_wait), "--hold"]
         if fresh:
             argv.append("--fresh")

@@ -222,7 +222,7 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
     assert os.access(rel / "venv" / "bin" / "hubctl", os.X_OK)
     assert (rel / "hubs.toml").read_bytes() == site.config.read_bytes()
     unit = (site.root / "etc" / "systemd" / "system" / UNIT).read_text()
-    assert f"ExecStart={site.current}/venv/bin/hubctl hub pi-tool --config {site.current}/hubs.toml\n" in unit
+    assert f"ExecStart={site.current}/venv/bin/python -P -m hubs pi-tool --config {site.current}/hubs.toml\n" in unit
     assert (rel / "units" / UNIT).read_text() == unit
     assert json.loads((rel / "release.json").read_text())["wheel_sha256"] == site.wheel.sha256
 

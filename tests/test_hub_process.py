@@ -1,4 +1,4 @@
-"""The hub contract, against a real `hubctl hub` process over Zenoh on loopback.
+"""The hub contract, against a real hub process (`python -m hubs`) over Zenoh on loopback.
 
 The test process plays the controller: it listens where the hub connects, sends
 commands, and reads states, mirrors, liveliness and the self-test report.
@@ -69,7 +69,7 @@ async def hub(tmp_path: Path) -> AsyncIterator[HubUnderTest]:
         alive = bus.watch_liveliness(Keys(config.station.name).alive("pi-tool"))
         log = tmp_path / "pi-tool.log"
         process = subprocess.Popen(
-            [sys.executable, "-m", "deploy.cli", "hub", "pi-tool", "--config", str(CONFIG), "--loopback-port",
+            [sys.executable, "-m", "hubs", "pi-tool", "--config", str(CONFIG), "--loopback-port",
              str(port), "--speed", "4"], cwd=ROOT, stdout=log.open("wb"), stderr=subprocess.STDOUT)
         try:
             event = await asyncio.wait_for(alive.get(), 15)

@@ -109,7 +109,7 @@ async def test_a_real_hub_process_is_seen(station, tmp_path):
         async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
             watch.restarted()
             hub = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "deploy.cli", "hub", "pi-tool", "--config", str(path), cwd=REPO,
+                sys.executable, "-m", "hubs", "pi-tool", "--config", str(path), cwd=REPO,
                 stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
             try:
                 seen = await watch.wait(timeout=30)

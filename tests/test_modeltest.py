@@ -67,7 +67,7 @@ class HubProcess:
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
-        argv = [sys.executable, "-m", "deploy.cli", "hub", self.hub, "--config", str(self.config),
+        argv = [sys.executable, "-m", "hubs", self.hub, "--config", str(self.config),
                 "--loopback-port", str(self.port), "--speed", SPEED]
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         with self.log.open("ab") as log:

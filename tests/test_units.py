@@ -105,12 +105,12 @@ def unit_problems(path: Path, systemd_version: int) -> list[str]:
 
 
 def fake_install(root: Path, layout: Layout, processes: list[str | None]) -> None:
-    """`systemd-analyze verify` wants the ExecStart binaries to exist: a venv whose hubctl is a stub."""
+    """`systemd-analyze verify` wants the ExecStart binaries to exist: a venv whose python is a stub."""
     for process in processes:
-        hubctl_path = Path(layout.current(process)) / "venv" / "bin" / "hubctl"
-        hubctl_path.parent.mkdir(parents=True, exist_ok=True)
-        hubctl_path.write_text("#!/bin/sh\nexit 0\n")
-        hubctl_path.chmod(0o755)
+        python_path = Path(layout.current(process)) / "venv" / "bin" / "python"
+        python_path.parent.mkdir(parents=True, exist_ok=True)
+        python_path.write_text("#!/bin/sh\nexit 0\n")
+        python_path.chmod(0o755)
 
 
 @pytest.fixture
@@ -148,8 +148,9 @@ def test_hub_unit_runs_the_current_release_with_self_test_and_backoff(station):
     layout = Layout("/")
     text = hub_unit(station, "pi-tool", layout, 252).text
     current = "/opt/statehub/hubs/pi-tool/current"
-    assert f"ExecStartPre={current}/venv/bin/hubctl selftest pi-tool --config {current}/hubs.toml" in text
-    assert f"ExecStart={current}/venv/bin/hubctl hub pi-tool --config {current}/hubs.toml" in text
+    assert f"ExecStartPre={current}/venv/bin/python -P -m hubs pi-tool --config {current}/hubs.toml --selftest\n" \
+        in text
+    assert f"ExecStart={current}/venv/bin/python -P -m hubs pi-tool --config {current}/hubs.toml\n" in text
     for line in ("User=statehub", "Restart=always", "RestartSec=5s", "StartLimitIntervalSec=0",
                  "After=network-online.target", "Wants=network-online.target", "NoNewPrivileges=yes",
                  "ProtectSystem=strict", "SupplementaryGroups=i2c", "StandardOutput=journal",
@@ -168,7 +169,7 @@ def test_device_groups_only_for_real_hardware(station):
 
 def test_controller_unit_keeps_its_state_in_var_lib(station):
     text = controller_unit(station).text
-    assert "ExecStart=/opt/statehub/controller/current/venv/bin/hubctl controller --config " \
+    assert "ExecStart=/opt/statehub/controller/current/venv/bin/python -P -m controller --config " \
            "/opt/statehub/controller/current/hubs.toml\n" in text
     assert "StateDirectory=statehub statehub/var\n" in text  # [controller] db = var/controller.sqlite
     assert "WorkingDirectory=%S/statehub\n" in text and "ExecStartPre" not in text

@@ -82,9 +82,8 @@ class Options:
 
 
 def child_commands(config: StationConfig, options: Options, port: int) -> list[Child]:
-    base = [sys.executable, "-m", "deploy.cli"]
     run_dir = options.run_dir
-    controller = [*base, "controller", "--config", options.config, "--loopback-port", str(port),
+    controller = [sys.executable, "-m", "controller", "--config", options.config, "--loopback-port", str(port),
                   "--db", str(run_dir / "controller.sqlite")]
     if not options.resume:
         controller.append("--fresh")
@@ -92,7 +91,7 @@ def child_commands(config: StationConfig, options: Options, port: int) -> list[C
         controller.append("--hold")
     children = [Child("controller", controller, run_dir / "controller.log")]
     for hub in config.hubs.values():
-        argv = [*base, "hub", hub.name, "--config", options.config, "--loopback-port", str(port),
+        argv = [sys.executable, "-m", "hubs", hub.name, "--config", options.config, "--loopback-port", str(port),
                 "--speed", str(options.speed), "--seed", str(options.seed)]
         if options.mode:
             argv += ["--mode", options.mode]

@@ -7,8 +7,11 @@ text itself only changes when the hub's devices or this template change.
 
 Choices, each for a reason:
 
-* `ExecStartPre=hubctl selftest HUB`: systemd refuses to start a hub whose devices fail
-  the self-test (DESIGN.md §6); the report lands in the journal.
+* `ExecStart=python -P -m hubs HUB` (and `-m controller`): the release's own interpreter, `-P`
+  so that the working directory (the controller's is its writable state directory) never
+  shadows the installed packages.
+* `ExecStartPre=python -P -m hubs HUB --selftest`: systemd refuses to start a hub whose
+  devices fail the self-test (DESIGN.md §6); the report lands in the journal.
 * `Restart=always` and no start limit (`StartLimitIntervalSec=0`): a hub is stateless
   and must come back by itself once its device or the network returns, however long
   that takes; a unit that gave up would need a person at the ECU. The backoff keeps a
@@ -143,7 +146,7 @@ def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
     if settings is None:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     current = layout.current(hub)
-    hubctl, toml = f"{current}/venv/bin/hubctl", f"{current}/hubs.toml"
+    hub_process, toml = [f"{current}/venv/bin/python", "-P", "-m", "hubs", hub], f"{current}/hubs.toml"
     name = hub_unit_name(hub)
     devices = ", ".join(f"{r} ({d.type}, {d.mode})" for r, d in settings.devices.items()) or "no devices"
     groups = hub_groups(settings)
@@ -151,8 +154,8 @@ def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
         f"User={SERVICE_USER}",
         f"Group={SERVICE_USER}",
         *([f"SupplementaryGroups={' '.join(groups)}"] if groups else []),
-        f"ExecStartPre={_exec(hubctl, 'selftest', hub, '--config', toml)}",
-        f"ExecStart={_exec(hubctl, 'hub', hub, '--config', toml)}",
+        f"ExecStartPre={_exec(*hub_process, '--config', toml, '--selftest')}",
+        f"ExecStart={_exec(*hub_process, '--config', toml)}",
         f"SyslogIdentifier={name.removesuffix('.service')}",
         # The hub's device nodes: PrivateDevices would hide them (see the module docstring).
         "PrivateDevices=no",
@@ -166,7 +169,7 @@ def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
 def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
                     systemd_version: int = DEFAULT_SYSTEMD) -> Unit:
     current = layout.current(None)
-    hubctl, toml = f"{current}/venv/bin/hubctl", f"{current}/hubs.toml"
+    python, toml = f"{current}/venv/bin/python", f"{current}/hubs.toml"
     # The controller persists its state (DESIGN.md §7) in [controller] db, relative to its
     # working directory: /var/lib/statehub, which systemd creates for the service user.
     state_dirs = ["statehub"]
@@ -182,7 +185,7 @@ def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
         f"StateDirectory={' '.join(state_dirs)}",
         "WorkingDirectory=%S/statehub",
         *extra,
-        f"ExecStart={_exec(hubctl, 'controller', '--config', toml)}",
+        f"ExecStart={_exec(python, '-P', '-m', 'controller', '--config', toml)}",
         "SyslogIdentifier=statehub-controller",
         "PrivateDevices=yes",
         "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK",

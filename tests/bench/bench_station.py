@@ -245,7 +245,7 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
     env = {**ENV, RESOURCES_ENV: str(resources)}
     log = (directory / f"controller_{resources}.log").open("wb")
     controller = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "controller", "--config", str(config), "--loopback-port", str(port),
+        [sys.executable, "-m", "controller", "--config", str(config), "--loopback-port", str(port),
          "--db", str(directory / f"bench_{resources}.sqlite"), "--fresh"],
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
     gens: list[subprocess.Popen[bytes]] = []
@@ -368,7 +368,7 @@ async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> 
     async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])) as bus:
         states = bus.subscribe(keys.state("nr"), coalesce=False, maxlen=None)
         alive = bus.watch_liveliness(keys.alive("pi-tool"))
-        hub = subprocess.Popen([sys.executable, "-m", "deploy.cli", "hub", "pi-tool", "--config", str(config_path),
+        hub = subprocess.Popen([sys.executable, "-m", "hubs", "pi-tool", "--config", str(config_path),
                                 "--loopback-port", str(port)], cwd=ROOT, env=ENV, stdout=log, stderr=subprocess.STDOUT)
         try:
             await asyncio.wait_for(alive.get(), 30)

@@ -6,7 +6,7 @@
         station.kill("pi-tool"); station.start_hub("pi-tool")
         station.freeze("ur10"); station.thaw("ur10")
 
-Each process is `python -m deploy.cli controller|hub ...` (what `hubctl up` and the
+Each process is `python -m controller` or `python -m hubs HUB ...` (what `hubctl up` and the
 systemd units run) with `--loopback-port`, in its own session, logging to a file in
 the test's temporary directory. `Station` is synchronous: the watcher runs its `Bus`
 on an event loop in a background thread and records, with the receive time:
@@ -339,7 +339,7 @@ class Station:
         return process
 
     def start_controller(self, *, fresh: bool = True, mirror_wait: float = 5.0) -> Process:
-        argv = [sys.executable, "-m", "deploy.cli", "controller", "--config", str(self.config_path),
+        argv = [sys.executable, "-m", "controller", "--config", str(self.config_path),
                 "--loopback-port", str(self.port), "--db", str(self.db), "--mirror-wait", str(mirror_wait)]
         if fresh:
             argv.append("--fresh")
@@ -351,7 +351,7 @@ class Station:
             argv = [sys.executable, str(LAZY_HUB), hub, "--config", str(self.config_path),
                     "--loopback-port", str(self.port), "--speed", str(self.speed), "--apply", str(lazy)]
         else:
-            argv = [sys.executable, "-m", "deploy.cli", "hub", hub, "--config", str(self.config_path),
+            argv = [sys.executable, "-m", "hubs", hub, "--config", str(self.config_path),
                     "--loopback-port", str(self.port), "--speed", str(self.speed)]
         return self._spawn(hub, argv)
 

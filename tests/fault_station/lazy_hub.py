@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from common.bus import Bus, zenoh_config_for
 from common.config import load_station
 from common.messages import HubStatus, MessageError
-from deploy.processes import network, setup_logging, stop_on_signals
+from common.process import network, setup_logging, stop_on_signals
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime, ResourceSlot
 

@@ -6,7 +6,7 @@
         assert cell.trace("ur.pos_m") == ["home", "unknown", "dock_lift_tool"]
 
 The test's bus listens where the controller would (`--loopback-port`); every hub runs as
-`python -m deploy.cli hub NAME --mode sim --params-file ...`, as `hubctl up --mode sim`
+`python -m hubs NAME --mode sim --params-file ...`, as `hubctl up --mode sim`
 starts them, and the simulated world (`deploy.local.simworld`) couples the simulators through
 the same bus. Every measured value the hubs publish is recorded in order (no
 coalescing), so a test can compare a variable's trace with the model's effects.
@@ -64,7 +64,7 @@ class SimCell:
         await self.world.start()
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         for hub in self.config.hubs:
-            argv = [sys.executable, "-m", "deploy.cli", "hub", hub, "--config", self.config_path, "--mode", "sim",
+            argv = [sys.executable, "-m", "hubs", hub, "--config", self.config_path, "--mode", "sim",
                     "--speed", str(self.speed), "--loopback-port", str(self.port), *self.world.hub_args(hub)]
             with (self.run_dir / f"{hub}.log").open("wb") as log:
                 self.hubs[hub] = await asyncio.create_subprocess_exec(

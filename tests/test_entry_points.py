@@ -1,0 +1,47 @@
+"""The process entry points: `python -m hubs`, `python -m controller`, and hubctl's commands that run them.
+
+The station's own tests start real hubs and controllers through `python -m ...` (hubctl up,
+the fault and sim stations); here: `hubctl hub`/`controller`/`selftest` are the same
+commands, and an operator's mistake is one line naming the process, not a traceback.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "hubs.toml"
+HUBCTL = [sys.executable, "-m", "deploy.cli"]
+
+
+def run(*argv: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(a) for a in argv], cwd=ROOT, capture_output=True, text=True, timeout=60)
+
+
+def test_a_hubs_self_test_is_the_same_from_every_entry_point() -> None:
+    direct = run(sys.executable, "-m", "hubs", "pi-tool", "--config", CONFIG, "--selftest")
+    assert direct.returncode == 0, direct.stderr
+    assert direct.stdout.startswith("self-test of hub pi-tool: PASS\n")
+    for argv in (["hub", "pi-tool", "--selftest"], ["selftest", "pi-tool"]):
+        through_hubctl = run(*HUBCTL, *argv, "--config", CONFIG)
+        assert (through_hubctl.returncode, through_hubctl.stdout) == (0, direct.stdout), argv
+
+
+def test_a_bad_option_is_one_line_naming_the_process() -> None:
+    hub = run(sys.executable, "-m", "hubs", "pi-tool", "--config", CONFIG, "--failure", "nr=2")
+    assert (hub.returncode, hub.stderr) == (2, "hub pi-tool: --failure 'nr=2': the probability must be within 0..1\n")
+    through_hubctl = run(*HUBCTL, "hub", "pi-tool", "--config", CONFIG, "--failure", "nr=2")
+    assert (through_hubctl.returncode, through_hubctl.stderr) == (2, hub.stderr.replace("hub pi-tool:", "hubctl:"))
+
+
+def test_an_invalid_station_file_is_reported_with_file_and_line(tmp_path: Path) -> None:
+    config = tmp_path / "hubs.toml"
+    config.write_text(CONFIG.read_text(encoding="utf-8") + "\n[station.extra]\n", encoding="utf-8")
+    direct = run(sys.executable, "-m", "controller", "--config", config)
+    assert direct.returncode == 2 and direct.stderr.startswith("controller: "), direct.stderr
+    assert f"{config}:" in direct.stderr and "Traceback" not in direct.stderr
+    through_hubctl = run(*HUBCTL, "controller", "--config", config)
+    expected = "hubctl: " + direct.stderr.removeprefix("controller: ")
+    assert (through_hubctl.returncode, through_hubctl.stderr) == (2, expected)
