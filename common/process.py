@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import socket
 import sys
 from collections.abc import Callable
 
@@ -42,6 +43,13 @@ def stop_on_signals() -> asyncio.Event:
 def network(config: StationConfig, process: str, loopback_port: int | None) -> NetworkConfig:
     """The process's network as hubs.toml gives it, or on loopback with the controller listening on the port."""
     return config.network_for(process) if loopback_port is None else config.loopback_network(process, loopback_port)
+
+
+def free_port() -> int:
+    """A TCP port on loopback that nothing listens on now: where a station run on loopback listens."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def positive(text: str) -> float:

@@ -22,15 +22,10 @@ from pathlib import Path
 import pytest
 
 from common.bus import Bus, BusClosed, KeyExprError, Keys, LivelinessEvent, Request, Sample, _Inbox, zenoh_config
+from common.process import free_port
 
 PEER = Path(__file__).with_name("bus_peer.py")
 STARTUP = 20.0  # generous bound for a peer to start and connect on a loaded machine
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Peers:

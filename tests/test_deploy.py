@@ -28,6 +28,7 @@ from pathlib import Path
 import pytest
 from deploy_support import REPO, Run, hubctl, station_toml
 
+from common.process import free_port
 from deploy.remote.wheel import Wheel, build_wheel
 
 pytestmark = pytest.mark.timeout(120)  # a hung ssh must not hang the suite
@@ -72,12 +73,6 @@ class SshServer:
         (self.shims / f"fail-{command}-{argument}").touch()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture(scope="module")
 def sshd(tmp_path_factory):
     if SSHD is None:
@@ -93,7 +88,7 @@ def sshd(tmp_path_factory):
     for name in ("systemctl", "useradd", "groupadd"):
         (shims / name).write_text(SHIM.format(name=name, log=calls, dir=shims))
         (shims / name).chmod(0o755)
-    port = _free_port()
+    port = free_port()
     user = getpass.getuser()
     # SHLVL=1: bash sources ~/.bashrc for an ssh command only at shell level 1, and a
     # developer's .bashrc (pyenv init...) would cost a second per remote command.
@@ -261,7 +256,7 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
 
     # With waiting: the shim systemctl starts no hub, so none shows up on Zenoh.
     run = site.deploy("--wait-timeout", "1", "--zenoh-listen", "tcp/127.0.0.1:0",
-                      "--zenoh-connect", f"tcp/127.0.0.1:{_free_port()}", wait=True)
+                      "--zenoh-connect", f"tcp/127.0.0.1:{free_port()}", wait=True)
     assert run.code == 1
     assert "failed at step [10/10] wait for hub pi-tool on zenoh" in run.err
     assert "hub pi-tool did not come up on zenoh within 1 s: no liveliness token" in run.err
@@ -345,7 +340,7 @@ def test_dry_run_changes_nothing(site):
 
 
 def test_unreachable_host_fails_at_the_probe(site):
-    port = _free_port()  # nobody listens there
+    port = free_port()  # nobody listens there
     run = hubctl("deploy", "pi-tool", *site.args("--offline-deps", "--wheel", str(site.wheel.path),
                                                  "--ssh-port", str(port)))
     assert run.code == 1

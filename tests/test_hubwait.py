@@ -8,7 +8,6 @@ a free port, so that gossip brings the hub to it.
 from __future__ import annotations
 
 import asyncio
-import socket
 import sys
 
 import pytest
@@ -17,6 +16,7 @@ from deploy_support import REPO, station_toml
 from common.bus import Bus, Keys, Request, zenoh_config, zenoh_config_for
 from common.config import parse_config
 from common.messages import encode
+from common.process import free_port
 from deploy.remote.deploy import Waiting, wait_step
 from deploy.remote.hubwait import HubWaitError, HubWatch, watch_config, watch_endpoints
 from deploy.remote.progress import Progress, StepFailed
@@ -24,12 +24,6 @@ from hubs.drivers.base import SelftestReport
 from hubs.selftest import report_message
 
 pytestmark = pytest.mark.timeout(60)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def report(ok: bool) -> bytes:
@@ -100,7 +94,7 @@ async def test_a_hub_that_never_comes_says_so(station):
 
 
 async def test_a_real_hub_process_is_seen(station, tmp_path):
-    """Against `hubctl hub` itself (emulated devices), the process a hub's unit runs."""
+    """Against the hub process itself (`python -m hubs`, emulated devices), what a hub's unit runs."""
     endpoint, config = station
     path = tmp_path / "hubs.toml"
     path.write_text(station_toml(connect=[endpoint]))

@@ -12,7 +12,6 @@ import contextlib
 import fcntl
 import os
 import signal
-import socket
 import sys
 import time
 from dataclasses import dataclass, field
@@ -22,6 +21,7 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import StationConfig, load_station
 from common.ctl import StatusMessage
 from common.messages import MessageError, decode
+from common.process import free_port
 
 RUN_DIR = Path("var/up")
 STOP_GRACE_S = 5.0
@@ -29,12 +29,6 @@ STOP_GRACE_S = 5.0
 
 class AlreadyRunning(RuntimeError):
     pass
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @contextlib.contextmanager

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -33,6 +32,7 @@ sys.path.insert(0, ROOT)
 import zenoh  # noqa: E402
 
 from common.bus import Bus, zenoh_config  # noqa: E402
+from common.process import free_port  # noqa: E402
 
 PAYLOAD = bytes(64)
 BLOCK = zenoh.CongestionControl.BLOCK
@@ -48,12 +48,6 @@ class Result:
         rtts = sorted(self.rtts_us)
         p99 = rtts[min(len(rtts) - 1, int(len(rtts) * 0.99))]
         return f"{self.name:<22} {statistics.median(rtts):>10.0f} {p99:>10.0f} {self.rate:>12,.0f}"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 # --- the echoing peer ---------------------------------------------------------------------

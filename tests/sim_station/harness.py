@@ -27,8 +27,8 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec, MessageError
 from common.model import Value
+from common.process import free_port
 from deploy.local.simworld import SimWorld
-from deploy.local.station import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND_PERIOD_S = 0.1
