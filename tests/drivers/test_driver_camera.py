@@ -2,15 +2,10 @@
 
 from __future__ import annotations
 
-import asyncio
-import os
-import subprocess
-import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
@@ -24,20 +19,14 @@ ZONES = {"shared": [[0, 0, 2, 2]], "robot": [[2, 0, 4, 2], [10, 10, 11, 11]]}
 
 
 @pytest.fixture
-async def tracker() -> AsyncIterator[CameraTrackerSim]:
-    sim = CameraTrackerSim(rate=50.0)
-    await sim.start()
-    yield sim
-    await sim.stop()
+async def tracker(serve: Serve) -> CameraTrackerSim:
+    return await serve(CameraTrackerSim(rate=50.0))
 
 
 @pytest.fixture
-async def driver(tracker: CameraTrackerSim) -> AsyncIterator[CameraTracker]:
-    drv = CameraTracker("cam", host="127.0.0.1", port=tracker.port, zones=ZONES, stale_after=0.3, backoff=FAST)
-    await drv.connect()
-    assert await drv.link.wait_connected(5)
-    yield drv
-    await drv.close()
+async def driver(tracker: CameraTrackerSim, connect: Connect) -> CameraTracker:
+    return await connect(CameraTracker("cam", host="127.0.0.1", port=tracker.port, zones=ZONES, stale_after=0.3,
+                                       backoff=FAST))
 
 
 def test_zones_and_frames() -> None:
@@ -126,12 +115,8 @@ async def test_selftest_fails_when_tracker_silent(tracker: CameraTrackerSim) -> 
 
 
 async def test_simulator_as_a_process() -> None:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "hubs.sim.camera_tracker", "--port", "0", "--walk", "4", "--rate", "50"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
-    try:
-        assert proc.stdout is not None
-        line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 15)
+    args = ("--port", "0", "--walk", "4", "--rate", "50")
+    async with simulator_process("hubs.sim.camera_tracker", *args) as (proc, line):
         drv = make_driver("cam", "camera", "sim", {"port": int(line.rsplit(":", 1)[1]), "reconnect_min": 0.05})
         await drv.connect()
         try:
@@ -142,7 +127,3 @@ async def test_simulator_as_a_process() -> None:
             await eventually(lambda: not drv.connected)
         finally:
             await drv.close()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 
 import can
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, eventually, read_until
 
 from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
@@ -44,12 +44,8 @@ def make(channel: str, **kwargs: float) -> LiftCan:
 
 
 @pytest.fixture
-async def driver(channel: str, lift: LiftSim) -> AsyncIterator[LiftCan]:
-    drv = make(channel)
-    await drv.connect()
-    assert await drv.link.wait_connected(5)
-    yield drv
-    await drv.close()
+async def driver(channel: str, lift: LiftSim, connect: Connect) -> LiftCan:
+    return await connect(make(channel))
 
 
 async def test_up_and_down(driver: LiftCan, lift: LiftSim) -> None:

@@ -3,16 +3,12 @@
 from __future__ import annotations
 
 import asyncio
-import os
-import subprocess
-import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
@@ -30,21 +26,15 @@ def params(port: int, **extra: Any) -> dict[str, Any]:
 
 
 @pytest.fixture
-async def mir() -> AsyncIterator[MirServer]:
-    server = MirServer(MirRobot(speed=20.0))
-    await server.start()
-    yield server
-    await server.stop()
+async def mir(serve: Serve) -> MirServer:
+    return await serve(MirServer(MirRobot(speed=20.0)))
 
 
 @pytest.fixture
-async def driver(mir: MirServer) -> AsyncIterator[MirRest]:
+async def driver(mir: MirServer, connect: Connect) -> MirRest:
     drv = make_driver("mir", "mir", "sim", params(mir.port))
     assert isinstance(drv, MirRest)
-    await drv.connect()
-    assert await drv.link.wait_connected(5)
-    yield drv
-    await drv.close()
+    return await connect(drv)
 
 
 async def test_auth_header_is_the_mir_scheme(mir: MirServer) -> None:
@@ -161,12 +151,7 @@ async def test_selftest_fails_when_state_not_read_back(driver: MirRest, mir: Mir
 
 
 async def test_simulator_as_a_process() -> None:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "hubs.sim.mir_rest", "--port", "0", "--speed", "50"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
-    try:
-        assert proc.stdout is not None
-        line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 15)
+    async with simulator_process("hubs.sim.mir_rest", "--port", "0", "--speed", "50") as (proc, line):
         drv = make_driver("mir", "mir", "sim", params(int(line.rsplit(":", 1)[1])))
         await drv.connect()
         try:
@@ -178,7 +163,3 @@ async def test_simulator_as_a_process() -> None:
             await eventually(lambda: not drv.connected)
         finally:
             await drv.close()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()

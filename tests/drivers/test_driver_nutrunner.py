@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, eventually, read_until
 
 from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
@@ -28,12 +26,8 @@ def station(bus: SimI2CBus) -> NutrunnerStation:
 
 
 @pytest.fixture
-async def driver(bus: SimI2CBus, station: NutrunnerStation) -> AsyncIterator[NutrunnerMcp23017]:
-    drv = NutrunnerMcp23017("nr", address=0x20, bus_factory=bus.open, backoff=FAST, io_timeout=0.5)
-    await drv.connect()
-    assert await drv.link.wait_connected(5)
-    yield drv
-    await drv.close()
+async def driver(bus: SimI2CBus, station: NutrunnerStation, connect: Connect) -> NutrunnerMcp23017:
+    return await connect(NutrunnerMcp23017("nr", address=0x20, bus_factory=bus.open, backoff=FAST, io_timeout=0.5))
 
 
 # -- the simulator at register level ---------------------------------------------------

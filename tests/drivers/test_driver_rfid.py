@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import asyncio
-import os
-import subprocess
-import sys
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, eventually, read_until, simulator_process
 
 from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
@@ -30,12 +27,9 @@ def reader(tmp_path: Path) -> Iterator[RfidReaderSim]:
 
 
 @pytest.fixture
-async def driver(reader: RfidReaderSim) -> AsyncIterator[RfidSerial]:
-    drv = RfidSerial("rfid", port=reader.path, operators={ALICE: "alice", BOB: "bob"}, repeat_window=0.2, backoff=FAST)
-    await drv.connect()
-    assert await drv.link.wait_connected(5)
-    yield drv
-    await drv.close()
+async def driver(reader: RfidReaderSim, connect: Connect) -> RfidSerial:
+    return await connect(RfidSerial("rfid", port=reader.path, operators={ALICE: "alice", BOB: "bob"},
+                                    repeat_window=0.2, backoff=FAST))
 
 
 def test_frame_format() -> None:
@@ -119,12 +113,8 @@ async def test_selftest_fails_when_port_absent(tmp_path: Path) -> None:
 
 async def test_simulator_as_a_process(tmp_path: Path) -> None:
     link = tmp_path / "rfid-proc"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "hubs.sim.rfid_serial", "--link", str(link)]
-    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
-    assert proc.stdin is not None and proc.stdout is not None
-    try:
-        assert (await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 15)).strip() == str(link)
+    async with simulator_process("hubs.sim.rfid_serial", "--link", str(link), stdin=True) as (proc, line):
+        assert proc.stdin is not None and line == str(link)
         drv = make_driver("rfid", "rfid", "sim", {"serial_port": str(link), "operators": [ALICE]})
         await drv.connect()
         try:
@@ -134,6 +124,3 @@ async def test_simulator_as_a_process(tmp_path: Path) -> None:
             await read_until(drv, verified_m=True)
         finally:
             await drv.close()
-    finally:
-        proc.kill()
-        proc.wait()

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
-import subprocess
-import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, Serve, eventually, read_until, simulator_process
 from pymodbus.client import AsyncModbusTcpClient
 
 from hubs.drivers import make_driver
@@ -26,29 +22,18 @@ FAST = Backoff(initial=0.02, maximum=0.2)
 
 
 @pytest.fixture
-async def coupler() -> AsyncIterator[ToolChangerServer]:
-    server = ToolChangerServer(ToolChangerPhysics(stroke_time=0.05))
-    await server.start()
-    yield server
-    await server.stop()
+async def coupler(serve: Serve) -> ToolChangerServer:
+    return await serve(ToolChangerServer(ToolChangerPhysics(stroke_time=0.05)))
 
 
 @pytest.fixture
-async def rsp(coupler: ToolChangerServer) -> AsyncIterator[RspModbus]:
-    drv = RspModbus("rsp", host="127.0.0.1", port=coupler.port, timeout=0.5, backoff=FAST)
-    await drv.connect()
-    assert await drv.link.reconnect.wait_connected(5)
-    yield drv
-    await drv.close()
+async def rsp(coupler: ToolChangerServer, connect: Connect) -> RspModbus:
+    return await connect(RspModbus("rsp", host="127.0.0.1", port=coupler.port, timeout=0.5, backoff=FAST))
 
 
 @pytest.fixture
-async def dock(coupler: ToolChangerServer) -> AsyncIterator[DockModbus]:
-    drv = DockModbus("dock", host="127.0.0.1", port=coupler.port, timeout=0.5, backoff=FAST)
-    await drv.connect()
-    assert await drv.link.reconnect.wait_connected(5)
-    yield drv
-    await drv.close()
+async def dock(coupler: ToolChangerServer, connect: Connect) -> DockModbus:
+    return await connect(DockModbus("dock", host="127.0.0.1", port=coupler.port, timeout=0.5, backoff=FAST))
 
 
 ALL_HOME = {"nutrunner_home_m": True, "lift_tool_home_m": True, "filter_tool_home_m": True}
@@ -183,12 +168,8 @@ def test_real_mode_requires_host() -> None:
 
 
 async def test_simulator_as_a_process() -> None:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "hubs.sim.toolchanger_modbus", "--port", "0", "--holding", "filter_tool"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env, cwd=REPO)
-    try:
-        assert proc.stdout is not None
-        line = await asyncio.wait_for(asyncio.to_thread(proc.stdout.readline), 15)
+    args = ("--port", "0", "--holding", "filter_tool")
+    async with simulator_process("hubs.sim.toolchanger_modbus", *args) as (proc, line):
         port = int(line.rsplit(":", 1)[1])
         drv = make_driver("dock", "dock", "sim", {"port": port, "reconnect_min": 0.02, "timeout": 0.5})
         await drv.connect()
@@ -201,7 +182,3 @@ async def test_simulator_as_a_process() -> None:
                 await drv.read()
         finally:
             await drv.close()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()

@@ -6,10 +6,10 @@ import asyncio
 import contextlib
 import itertools
 import os
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, eventually, read_until
 from ur_fake import HOME, FakeUr, ur_params
 
 from hubs.drivers import make_driver
@@ -29,13 +29,10 @@ def fake() -> Iterator[FakeUr]:
 
 
 @pytest.fixture
-async def ur(fake: FakeUr) -> AsyncIterator[UrRtde]:
+async def ur(fake: FakeUr, connect: Connect) -> UrRtde:
     drv = make_driver("ur", "ur", "sim", ur_params(fake.host))
     assert isinstance(drv, UrRtde)
-    await drv.connect()
-    assert await drv.link.wait_connected(15)
-    yield drv
-    await drv.close()
+    return await connect(drv, timeout=15)
 
 
 def test_pose_table_and_orientation_math() -> None:

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from multiprocessing.connection import Connection
 from typing import Any
 
 import pytest
-from drvtest import eventually, read_until
+from drvtest import Connect, eventually, read_until
 from ur_fake import HOME, FakeUr, ur_params
 
 from hubs.drivers import make_driver
@@ -74,14 +74,11 @@ def test_rtde_receive_interface_reads_the_fake(fake: FakeUr) -> None:
 
 
 @pytest.fixture
-async def ur(fake: FakeUr) -> AsyncIterator[UrRtde]:
+async def ur(fake: FakeUr, connect: Connect) -> UrRtde:
     fake.command(cmd="movej", q=HOME, speed=10)  # tests share this fake: start from home
     drv = make_driver("ur", "ur", "sim", ur_params(fake.host, backend="real"))
     assert isinstance(drv, UrRtde)
-    await drv.connect()
-    assert await drv.link.wait_connected(15)
-    yield drv
-    await drv.close()
+    return await connect(drv, timeout=15)
 
 
 async def test_real_backend_moves_through_rtde_control(ur: UrRtde, fake: FakeUr) -> None:
