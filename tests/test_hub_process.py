@@ -7,36 +7,27 @@ commands, and reads states, mirrors, liveliness and the self-test report.
 from __future__ import annotations
 
 import asyncio
-import os
-import signal
-import socket
-import subprocess
-import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import msgspec
 import pytest
+from hub_process import HubProcess
 
 from common.bus import Bus, Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec, HubStatus, decode
+from common.process import free_port
 from hubs.selftest import SelftestMessage
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hubs.toml"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class HubUnderTest:
-    def __init__(self, bus: Bus, process: subprocess.Popen[bytes], log: Path, station: str) -> None:
-        self.bus, self.process, self.log = bus, process, log
+    def __init__(self, bus: Bus, hub: HubProcess, station: str) -> None:
+        self.bus, self.process = bus, hub
         self.keys = Keys(station)
         _, model = load_station(CONFIG)
         self.codec = Codec(model.resource_by_name["nr"])
@@ -54,7 +45,7 @@ class HubUnderTest:
             if predicate(self.last):
                 return self.last
         raise AssertionError(f"no matching state within {timeout} s; last: {self.last}\nhub log:\n"
-                             f"{self.log.read_text()[-3000:]}")
+                             f"{self.process.log.read_text()[-3000:]}")
 
     def command(self, seq: int, run_c: bool) -> None:
         message = self.codec.command({"run_c": run_c}, seq=seq, controller="test-controller")
@@ -62,26 +53,15 @@ class HubUnderTest:
 
 
 @pytest.fixture
-async def hub(tmp_path: Path) -> AsyncIterator[HubUnderTest]:
+async def hub(hub_process: Callable[..., HubProcess]) -> AsyncIterator[HubUnderTest]:
     port = free_port()
     config, _ = load_station(CONFIG)
     async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], lease_ms=config.network.lease_ms)) as bus:
         alive = bus.watch_liveliness(Keys(config.station.name).alive("pi-tool"))
-        log = tmp_path / "pi-tool.log"
-        process = subprocess.Popen(
-            [sys.executable, "-m", "hubs", "pi-tool", "--config", str(CONFIG), "--loopback-port",
-             str(port), "--speed", "4"], cwd=ROOT, stdout=log.open("wb"), stderr=subprocess.STDOUT)
-        try:
-            event = await asyncio.wait_for(alive.get(), 15)
-            assert event.alive
-            yield HubUnderTest(bus, process, log, config.station.name)
-        finally:
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-                try:
-                    process.wait(5)
-                except subprocess.TimeoutExpired:
-                    process.kill()
+        process = hub_process(CONFIG, "pi-tool", port, "--speed", "4")
+        event = await asyncio.wait_for(alive.get(), 15)
+        assert event.alive
+        yield HubUnderTest(bus, process, config.station.name)
 
 
 async def test_commands_are_applied_mirrored_and_drive_the_device(hub: HubUnderTest) -> None:
@@ -113,7 +93,7 @@ async def test_out_of_domain_and_garbage_commands_change_nothing(hub: HubUnderTe
     for garbage in (b"", b"\x00\xff", raw[:7], msgspec.msgpack.encode([1, 2, 3])):
         hub.bus.publish(hub.keys.cmd("nr"), garbage)
     await asyncio.sleep(0.3)
-    assert hub.process.poll() is None
+    assert hub.process.alive()
     after = await hub.state_where(lambda s: True)
     assert after.mirror.seq == 5 and after.run_m is False
 
@@ -158,6 +138,6 @@ async def test_selftest_report_and_liveliness(hub: HubUnderTest) -> None:
     report = decode(replies[0].payload, SelftestMessage)
     assert report.ok and {d.resource for d in report.devices} == {"nr", "lift"}
     gone = hub.bus.watch_liveliness(hub.keys.alive("pi-tool"), history=False)
-    os.kill(hub.process.pid, signal.SIGKILL)
+    hub.process.kill()
     event = await asyncio.wait_for(gone.get(), 5)
     assert event.alive is False

@@ -16,24 +16,23 @@ the deadlines are functional bounds, never timing assertions.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from hub_process import HubProcess, running_hub
 
 from common.bus import Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec
 from common.model import Model, Phase, Resource, ability, command, measured
+from common.process import free_port
 from common.resources import nutrunner
 from deploy.modeltest import ModelTestFailed, Options, ResourceOracle, Target, model_based_test, run_model_test
 from deploy.modeltest.checker import EFFECT_NOT_OBSERVED, UNEXPLAINED_CHANGE, Checker, Observation, Violation
@@ -51,51 +50,6 @@ QUIRKY = STATIONS / "quirky.toml"
 SPEED = "5"  # emulated effects take 0.05 s (nutrunner) to 0.12 s (lift)
 STARTUP = 20.0  # generous bound for a process to start and connect on a loaded machine
 FAST = Options(examples=6, max_steps=4, deadline=1.0, quiet=0.1)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class HubProcess:
-    """`hubctl hub NAME --config C --loopback-port P` as a separate OS process; `restart()` is a power cycle."""
-
-    def __init__(self, config: Path, hub: str, port: int, log: Path) -> None:
-        self.config, self.hub, self.port, self.log = config, hub, port, log
-        self.process: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> None:
-        argv = [sys.executable, "-m", "hubs", self.hub, "--config", str(self.config),
-                "--loopback-port", str(self.port), "--speed", SPEED]
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        with self.log.open("ab") as log:
-            self.process = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-
-    def stop(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-            try:
-                self.process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(timeout=10)
-        self.process = None
-
-    def restart(self) -> None:
-        self.stop()
-        self.start()
-
-
-@contextlib.contextmanager
-def running_hub(config: Path, hub: str, port: int, log: Path) -> Iterator[HubProcess]:
-    process = HubProcess(config, hub, port, log)
-    process.start()
-    try:
-        yield process
-    finally:
-        process.stop()
 
 
 def paper_model() -> Model:
@@ -251,7 +205,7 @@ EMULATED_PORT = free_port()
 @pytest.fixture(scope="module")
 def emulated_hub(tmp_path_factory: pytest.TempPathFactory) -> Iterator[HubProcess]:
     log = tmp_path_factory.mktemp("modeltest") / "tool.log"
-    with running_hub(EMULATED, "tool", EMULATED_PORT, log) as hub:
+    with running_hub(EMULATED, "tool", EMULATED_PORT, log, "--speed", SPEED) as hub:
         yield hub
 
 
@@ -297,10 +251,9 @@ QUIRKY_OPTIONS = Options(examples=8, max_steps=4, deadline=0.6, quiet=0.1)
 
 
 @pytest.fixture
-def quirky_hub(tmp_path: Path) -> Iterator[HubProcess]:
+def quirky_hub(hub_process: Callable[..., HubProcess]) -> HubProcess:
     """A fresh hub emulating the quirky nutrunner (each test starts with a device never used)."""
-    with running_hub(QUIRKY, "tool", QUIRKY_PORT, tmp_path / "quirky.log") as hub:
-        yield hub
+    return hub_process(QUIRKY, "tool", QUIRKY_PORT, "--speed", SPEED)
 
 
 def test_the_papers_model_fails_on_the_real_nutrunner_with_a_minimal_sequence(quirky_hub: HubProcess,
@@ -389,10 +342,10 @@ def test_hubctl_test_refuses_while_a_controller_commands_the_hub() -> None:
     assert "a controller is running" in result.stdout and "decs-12345678 commanding nr" in result.stdout
 
 
-def test_hubctl_test_passes_an_emulated_hub(tmp_path: Path) -> None:
+def test_hubctl_test_passes_an_emulated_hub(hub_process: Callable[..., HubProcess]) -> None:
     port = free_port()
-    with running_hub(EMULATED, "tool", port, tmp_path / "tool.log"):
-        result = hubctl_test("tool", "--config", str(EMULATED), "--resource", "nr", "--examples", "3",
-                             "--max-steps", "3", "--deadline", "1", "--loopback-port", str(port))
+    hub_process(EMULATED, "tool", port, "--speed", SPEED)
+    result = hubctl_test("tool", "--config", str(EMULATED), "--resource", "nr", "--examples", "3",
+                         "--max-steps", "3", "--deadline", "1", "--loopback-port", str(port))
     assert result.returncode == 0, result.stdout + result.stderr
     assert "nr: example 3/3" in result.stdout and "PASSED 3 examples" in result.stdout

@@ -1,0 +1,32 @@
+"""What the tests share. Fixtures here; helpers the test modules import sit beside them
+(hub_process.py, deploy_support.py, fault_station/, sim_station/; the driver tests' own
+in drivers/conftest.py and drivers/drvtest.py). A free loopback port is `common.process.free_port`,
+the one `hubctl up` uses.
+
+The end-to-end runs (a whole station, many processes, minutes of wall time) are marked
+`slow`: `./dev test --fast` leaves them out (`pytest -m "not slow"`), `./dev test` runs all.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from hub_process import HubProcess
+
+
+@pytest.fixture
+def hub_process(tmp_path: Path) -> Iterator[Callable[..., HubProcess]]:
+    """Start hub processes: `hub_process(config, hub, port, *options)`; each is stopped after the test
+    (its log, `<hub>.log` in the test's temporary directory, stays for a post-mortem)."""
+    started: list[HubProcess] = []
+
+    def start(config: Path, hub: str, port: int, *options: str) -> HubProcess:
+        process = HubProcess(config, hub, port, tmp_path / f"{hub}.log", *options).start()
+        started.append(process)
+        return process
+
+    yield start
+    for process in reversed(started):
+        process.stop()
