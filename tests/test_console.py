@@ -17,11 +17,7 @@ controller publishes (its status and state snapshot, recorded by the harness's w
 
 from __future__ import annotations
 
-import os
-import re
-import sys
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TypeVar
@@ -34,7 +30,7 @@ from common.ctl import ConsoleReply
 from controller.console import ConsoleApp
 from controller.console_link import ConsoleLink
 from controller.console_station import StationInfo
-from tests.fault_station.harness import ROOT, Process, Station
+from tests.fault_station.harness import ROOT, Station, write_config
 
 pytestmark = pytest.mark.timeout(360)
 
@@ -44,33 +40,9 @@ SCREEN = (200, 60)
 T = TypeVar("T")
 
 
-def station_config(directory: Path, template: Path, *, replace: tuple[tuple[str, str], ...] = ()) -> Path:
-    """A copy of `template` with a station name unique to this run (and text replacements)."""
-    text, count = re.subn(r'(?m)^name = "[^"]*"', f'name = "console_{os.getpid()}_{uuid.uuid4().hex[:6]}"',
-                          template.read_text(), count=1)
-    assert count == 1, f"{template}: no station name"
-    for old, new in replace:
-        assert old in text, f"{template}: no {old!r}"
-        text = text.replace(old, new)
-    path = directory / "hubs.toml"
-    path.write_text(text)
-    return path
-
-
-class HeldStation(Station):
-    """The harness's station with the controller run as `hubctl controller --hold`: nothing starts by itself."""
-
-    def start_controller(self, *, fresh: bool = True, mirror_wait: float = 5.0) -> Process:
-        argv = [sys.executable, "-m", "controller", "--config", str(self.config_path),
-                "--loopback-port", str(self.port), "--db", str(self.db), "--mirror-wait", str(mirror_wait), "--hold"]
-        if fresh:
-            argv.append("--fresh")
-        return self._spawn("controller", argv)
-
-
 @pytest.fixture
 def console_station(tmp_path: Path) -> Iterator[Station]:
-    with HeldStation(tmp_path, config=station_config(tmp_path, CONSOLE_STATION)) as station:
+    with Station(tmp_path, config=write_config(tmp_path, CONSOLE_STATION, prefix="console"), hold=True) as station:
         station.start()
         yield station
 
@@ -222,8 +194,8 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
 async def test_reference_station_runs_to_completion_from_the_console(tmp_path: Path) -> None:
     """The operator's whole job: start the station, confirm each instruction, watch it finish."""
     never_confirms = ('type = "operator"\nmode = "emulate"\n', 'type = "operator"\nmode = "emulate"\ndelay = 3600\n')
-    config = station_config(tmp_path, REFERENCE_STATION, replace=(never_confirms,))
-    with HeldStation(tmp_path, config=config, speed=5.0) as station:
+    config = write_config(tmp_path, REFERENCE_STATION, prefix="console", replace=(never_confirms,))
+    with Station(tmp_path, config=config, speed=5.0, hold=True) as station:
         station.start(timeout=60)
         app = console_for(station)
         tasks = station.model.resource_by_name["human"].parameters["tasks"]

@@ -20,112 +20,36 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from itertools import pairwise
 from pathlib import Path
-from typing import Any
 
-import msgspec
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
-from common.ctl import StateSnapshot, StatusMessage
-from common.messages import Codec, HubStatus, encode
-from hubs.selftest import report_message
-from tests.fault_station.harness import Seen, Station, rising_edges, value_at
-from tests.fault_station.model import BOLT_POSES, BOLTS, bolt
+from common.messages import HubStatus
+from tests.fault_station.checks import (
+    POSE_OF,
+    RUN_TIMEOUT_S,
+    assert_station_done_each_bolt_once,
+    between,
+    controller_commands,
+    nr_running_on_bolt,
+    op_states,
+    tightenings,
+)
+from tests.fault_station.garbage import flood, message_samples, mirror_key, payload_strategy, with_changes
+from tests.fault_station.harness import Station
+from tests.fault_station.model import BOLTS, bolt
+from tests.fault_station.watcher import Seen, rising_edges, value_at
 
 pytestmark = pytest.mark.timeout(120)
 
-RUN_TIMEOUT_S = 40.0  # the station needs ~5 s; generous for a loaded 2-core machine
 DETECTION_BOUND_S = 2.0  # the issue's bound for noticing a frozen hub
 DETECTION_MARGIN_S = 0.5
-POSE_OF = {pose: i for i, pose in BOLT_POSES.items()}
-OPERATIONS = tuple(f"TightenBolt{i}" for i in BOLTS)
 
 
 @pytest.fixture
 def station(tmp_path: Path) -> Iterator[Station]:
     with Station(tmp_path) as s:
         yield s
-
-
-# --- what every test checks at the end -----------------------------------------------------
-
-def tightenings(station: Station) -> list[tuple[int | None, Seen]]:
-    """Each tightening the nutrunner did (a rising edge of tqr_m), with the bolt the robot was at."""
-    ur_states = station.watch.states("ur")
-    return [(POSE_OF.get(value_at(ur_states, "pos_m", edge.at)), edge)
-            for edge in rising_edges(station.watch.states("nr"), "tqr_m")]
-
-
-def tightened_at(station: Station) -> dict[int | None, int]:
-    counts: dict[int | None, int] = {}
-    for i, _ in tightenings(station):
-        counts[i] = counts.get(i, 0) + 1
-    return counts
-
-
-def op_states(status: StatusMessage) -> dict[str, str]:
-    return {op.name: op.state for op in status.operations}
-
-
-def assert_station_done_each_bolt_once(station: Station) -> None:
-    """The station finished, every bolt was tightened exactly once, and everyone agrees."""
-    watch = station.watch
-    assert watch.finished(), station.describe()
-    # What the devices did: one tightening per bolt pose, none anywhere else, no failure.
-    first_seqs = {r: (s[0].message.seq if (s := watch.states(r)) else None) for r in ("nr", "ur")}
-    assert tightened_at(station) == dict.fromkeys(BOLTS, 1), \
-        f"tightenings per bolt: {tightened_at(station)} (None: the robot was at no bolt); first seqs {first_seqs}"
-    assert not any(s.message.fail_m for s in watch.states("nr"))
-    # What the controller believed: each bolt goes placed -> tightened once, and stays (snapshots come
-    # at 1 Hz: wait for one that is newer than the end).
-    station.wait_for(lambda: all(watch.snapshot().get(bolt(i)) == "tightened" for i in BOLTS), 3,
-                     "a state snapshot with every bolt tightened")
-    snapshots = watch.snapshots()
-    for i in BOLTS:
-        values = [s.message.values[bolt(i)] for s in snapshots]
-        changes = [b for a, b in pairwise(values) if a != b]
-        assert changes in ([], ["tightened"]), f"{bolt(i)} went {values}"
-        assert values[-1] == "tightened"
-    # Each operation finishes once and stays finished, across controller restarts.
-    for name in OPERATIONS:
-        seen = [op_states(s.message)[name] for s in watch.statuses()]
-        first = seen.index("finished")
-        assert all(state == "finished" for state in seen[first:]), f"{name} left finished: {seen[first:]}"
-    # What is persisted.
-    persisted = station.persisted()
-    for i in BOLTS:
-        assert persisted[bolt(i)] == "tightened"
-    for name in OPERATIONS:
-        assert persisted[f"op.{name}"] == "finished"
-    assert not station.dead(), f"processes exited: {station.dead()}"
-    loop = watch.status().loop  # the controller measures its own loop (tests/bench/bench_station.py reads it)
-    assert loop is not None and loop.ticks > 0 and loop.states > 0 and loop.tick_ms_median > 0
-
-
-def nr_running_on_bolt(station: Station, nth: int) -> Any:
-    """Wait until the nutrunner runs (run_m, no torque yet) for the nth time; returns that state."""
-    def running() -> Any:
-        states = station.watch.states("nr")
-        if len(rising_edges(states, "run_m")) < nth:
-            return None
-        last = states[-1].message
-        return last if last.run_m and not last.tqr_m else None
-
-    return station.wait_for(running, RUN_TIMEOUT_S, f"the nutrunner runs for the {nth}. time", poll=0.002)
-
-
-def controller_commands(station: Station, resource: str, controller: str | None = None) -> list[Seen]:
-    """Commands the controller (any run, or one by id) published; the tests' own garbage never decodes."""
-    return [c for c in station.watch.commands(resource)
-            if c.message.controller.startswith(f"{station.config.controller.name}-")
-            and (controller is None or c.message.controller == controller)]
-
-
-def between(seen: list[Seen], start: float, end: float) -> list[Seen]:
-    return [s for s in seen if start <= s.at <= end]
 
 
 # --- 1. kill -9 the nutrunner's hub while it tightens, restart it --------------------------------
@@ -368,99 +292,6 @@ def test_mirror_lag_is_measured_from_the_oldest_command_not_mirrored() -> None:
 
 # --- 5. garbage, truncated, wrong-schema and out-of-domain payloads on every key ------------------
 
-def _message_samples(station: Station) -> dict[str, list[bytes]]:
-    """Well-formed payloads of every kind, as published on each key (the basis of truncation)."""
-    codecs = station.watch.codecs
-    nr, ur = codecs["nr"], codecs["ur"]
-    command = {"nr": nr.command({"run_c": False}, seq=1, controller="intruder"),
-               "ur": ur.command({"ref_pos_c": "home"}, seq=1, controller="intruder")}
-    state = {"nr": nr.state({"run_m": False, "tqr_m": False, "fail_m": False}, status="ok", seq=1, hub="x",
-                            mirror=command["nr"]),
-             "ur": ur.state({"pos_m": "home", "prot_stop_m": False}, status="ok", seq=1, hub="x",
-                            mirror=command["ur"])}
-    status = station.watch.status()
-    snapshot = StateSnapshot(time=time.time(), values=station.watch.snapshot())
-    return {
-        "cmd": [codecs[r].encode_command(command[r]) for r in ("nr", "ur")],
-        "state": [codecs[r].encode_state(state[r]) for r in ("nr", "ur")],
-        "ctl": [encode(status) if status is not None else b"", encode(snapshot)],
-        "selftest": [encode(report_message("pi-tool", []))],
-    }
-
-
-def _other_model(payload: bytes) -> bytes:
-    raw = msgspec.msgpack.decode(payload)
-    raw["model_hash"] = "0123456789abcdef"
-    if isinstance(raw.get("mirror"), dict):
-        raw["mirror"]["model_hash"] = "0123456789abcdef"
-    return msgspec.msgpack.encode(raw)
-
-
-def _with(payload: bytes, **changes: Any) -> bytes:
-    raw = msgspec.msgpack.decode(payload)
-    raw.update(changes)
-    return msgspec.msgpack.encode(raw)
-
-
-def payload_strategy(station: Station) -> st.SearchStrategy[tuple[str, bytes]]:
-    keys = station.keys
-    samples = _message_samples(station)
-    by_kind = {
-        "cmd": [keys.cmd("nr"), keys.cmd("ur")],
-        "state": [keys.state("nr"), keys.state("ur")],
-        "ctl": [keys.ctl("status"), keys.ctl("state"), keys.ctl("console", "request")],
-        "selftest": [keys.selftest("pi-tool"), keys.selftest("ur10")],
-    }
-    every_key = [k for ks in by_kind.values() for k in ks]
-    every_message = [p for ps in samples.values() for p in ps]
-    nr_cmd, ur_cmd = samples["cmd"]
-    ints = st.integers(-2**63, 2**64 - 1)  # what MessagePack can carry
-    msgpack_values = st.recursive(
-        st.none() | st.booleans() | ints | st.floats() | st.text(max_size=20)
-        | st.binary(max_size=20),
-        lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=10), inner, max_size=5),
-        max_leaves=20)
-    garbage = st.binary(max_size=300)
-    random_msgpack = msgpack_values.map(msgspec.msgpack.encode)
-    truncated = st.sampled_from(every_message).flatmap(
-        lambda p: st.integers(0, max(0, len(p) - 1)).map(lambda n: p[:n]))
-    other_model = st.sampled_from(samples["cmd"] + samples["state"]).map(_other_model)
-    other_schema = st.sampled_from(every_message).flatmap(
-        lambda p: st.sampled_from([0, 2, 99, -1, "1", None]).map(lambda v: _with(p, schema=v)))
-    out_of_domain = st.one_of(
-        st.one_of(ints, st.text(max_size=10), st.none(), st.floats()).map(lambda v: _with(nr_cmd, run_c=v)),
-        st.one_of(st.text(max_size=12).filter(lambda t: t not in ("home", *BOLT_POSES.values())), ints,
-                  st.booleans()).map(lambda v: _with(ur_cmd, ref_pos_c=v)),
-    )
-    any_payload = st.one_of(garbage, random_msgpack, truncated, other_model, other_schema, out_of_domain)
-    # Payloads on every key, and each kind of message aimed at the keys that carry that kind.
-    return st.one_of(
-        st.tuples(st.sampled_from(every_key), any_payload),
-        st.tuples(st.sampled_from(by_kind["cmd"]), st.one_of(out_of_domain, other_model, truncated)),
-    )
-
-
-def flood(station: Station, strategy: st.SearchStrategy[tuple[str, bytes]], examples: int, spacing: float) -> int:
-    """Publish `examples` Hypothesis-chosen payloads, `spacing` s apart; every process must stay up."""
-    published = [0]
-
-    @settings(max_examples=examples, deadline=None, suppress_health_check=list(HealthCheck))
-    @given(strategy)
-    def publish(item: tuple[str, bytes]) -> None:
-        key, payload = item
-        station.watch.publish(key, payload)
-        published[0] += 1
-        time.sleep(spacing)
-        assert not station.dead(), f"{station.dead()} died after {len(payload)} bytes on {key}: {payload[:80]!r}"
-
-    publish()
-    return published[0]
-
-
-def mirror_key(mirror: Any, codec: Codec) -> tuple[Any, ...] | None:
-    return None if mirror is None else (mirror.controller, mirror.seq, tuple(codec.values(mirror).items()))
-
-
 def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station) -> None:
     station.start()
     nr_running_on_bolt(station, 1)
@@ -485,8 +316,8 @@ def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station
     published = flood(station, strategy, examples=100, spacing=0.01)
     # Out-of-domain commands for each resource, deterministically: the hub rejects them and says so.
     for resource, raw, shown in (
-            ("nr", _with(_message_samples(station)["cmd"][0], run_c=7, seq=10**6), "nr.run_c = 7 "),
-            ("ur", _with(_message_samples(station)["cmd"][1], ref_pos_c="on_the_moon", seq=10**6),
+            ("nr", with_changes(message_samples(station)["cmd"][0], run_c=7, seq=10**6), "nr.run_c = 7 "),
+            ("ur", with_changes(message_samples(station)["cmd"][1], ref_pos_c="on_the_moon", seq=10**6),
              "ur.ref_pos_c = 'on_the_moon' ")):
         sent_at = time.monotonic()
         station.watch.publish(station.keys.cmd(resource), raw)

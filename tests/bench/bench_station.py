@@ -2,11 +2,11 @@
 
     python tests/bench/bench_station.py [--quick] [--max-resources N]
 
-(a) command -> mirror round trip through a real hub process (`hubctl hub`, one emulated
+(a) command -> mirror round trip through a real hub process (`python -m hubs`, one emulated
     nutrunner, 50 Hz): this process plays the controller, publishes a command and times
     the first state that mirrors it. Median and p99 (target p99 < 5 ms).
-(b) controller capacity: a real controller process (`hubctl controller`) with a synthetic
-    model of N nutrunners, served by load-generator processes (this file with --generator,
+(b) controller capacity: a real controller process (`python -m controller`) with a synthetic
+    model of N nutrunners, served by load-generator processes (bench_station_load.py,
     one per 250 resources, each a hub of the station) that publish each resource's state
     at 50 Hz (spread over the period, as independent hubs would), mirror the commands they
     receive and hold their hub's liveliness token. N is stepped up; a step passes while the controller's tick median
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import os
 import signal
@@ -35,7 +34,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -46,32 +44,16 @@ ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(HERE))
 
-from common.bus import Bus, Keys, zenoh_config  # noqa: E402
-from common.model import Model  # noqa: E402
-from common.resources import nutrunner  # noqa: E402
+from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
-RESOURCES_ENV = "STATEHUB_BENCH_RESOURCES"
-HUB_RATE_HZ = 50.0
+from common.bus import Bus, Keys, zenoh_config  # noqa: E402
+from common.process import free_port  # noqa: E402
+
 TICK_MEDIAN_LIMIT_MS = 5.0
 AGE_LIMIT_MS = 3 * 1000.0 / HUB_RATE_HZ
 INGEST_SHARE = 0.95
-RESOURCES_PER_GENERATOR = 250  # a load generator is one Python process: several share the load, as hubs do
 FAULT_STATION = ROOT / "tests" / "fault_station" / "hubs.toml"
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-
-
-def build_model() -> Model:
-    """The capacity station: N nutrunners (N from $STATEHUB_BENCH_RESOURCES), nothing else."""
-    n = int(os.environ.get(RESOURCES_ENV, "10"))
-    return Model(f"bench_{n}_nutrunners", tuple(nutrunner(f"nr{i}") for i in range(n)))
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -88,104 +70,6 @@ def stop(process: subprocess.Popen[bytes] | None) -> None:
     except subprocess.TimeoutExpired:
         process.kill()
         process.wait(5)
-
-
-def generator_slices(resources: int) -> list[range]:
-    """The resources of each load generator (each one a hub of the station, `gen<k>`)."""
-    count = max(1, -(-resources // RESOURCES_PER_GENERATOR))
-    bounds = [resources * k // count for k in range(count + 1)]
-    return [range(bounds[k], bounds[k + 1]) for k in range(count)]
-
-
-def write_station(directory: Path, station: str, resources: int) -> Path:
-    lines = [
-        "[station]", f'name = "{station}"', 'model = "tests.bench.bench_station:build_model"', "",
-        "[network]", 'mode = "peer"', "lease_ms = 2000", "",
-        "[controller]", 'host = "localhost"', 'name = "bench"', "command_rate_hz = 10", "tick_rate_hz = 20",
-        "mirror_timeout_s = 1.0", "stale_after_s = 0.5", "",
-    ]
-    for k, served in enumerate(generator_slices(resources)):
-        lines += [f"[hubs.gen{k}]", 'host = "localhost"', f"rate_hz = {HUB_RATE_HZ}", ""]
-        for i in served:
-            lines += [f"[hubs.gen{k}.devices.nr{i}]", 'type = "nutrunner"', ""]
-    path = directory / f"bench_{resources}.toml"
-    path.write_text("\n".join(lines))
-    return path
-
-
-# --- (b) the load generator (a process of its own) -----------------------------------------------
-
-def generator(endpoint: str, station: str, hub: str, resources: int, served: range, rate_hz: float) -> None:
-    """Publish the state of the nutrunners `served` (of `resources`) at `rate_hz` each, spread over the period,
-    mirroring the newest command of each, until stdin closes; then print what was sent as JSON."""
-    import msgspec
-    import zenoh
-
-    from common.messages import SCHEMA, Codec, HubStatus, MessageError
-
-    os.environ[RESOURCES_ENV] = str(resources)
-    model = build_model()
-    keys = Keys(station)
-    codecs = [Codec(model.resources[i]) for i in served]
-    session = zenoh.open(zenoh_config("peer", connect=[endpoint]))
-    token = session.liveliness().declare_token(keys.alive(hub))
-    latest: dict[str, bytes] = {}  # newest command payload per resource, set on zenoh's thread
-
-    def on_command(sample: zenoh.Sample) -> None:
-        resource = keys.resource_of(str(sample.key_expr))
-        if resource is not None:
-            latest[resource] = sample.payload.to_bytes()
-
-    # Declared, as the controller declares the state keys: one process standing in for many hubs
-    # otherwise pays zenoh's matching of every command against all the state keys it publishes.
-    # (It hears the other generators' commands too: the key layout has no narrower wildcard.)
-    keyexprs = [session.declare_keyexpr(keys.cmd(r.name)) for r in model.resources]
-    subscriber = session.declare_subscriber(keys.all_cmd, on_command)
-    publishers = [session.declare_publisher(keys.state(c.resource), congestion_control=zenoh.CongestionControl.DROP)
-                  for c in codecs]
-    count = len(codecs)
-    mirrors: list[object] = [None] * count
-    decoded_from: list[bytes | None] = [None] * count
-    encode = msgspec.msgpack.Encoder().encode
-    stopped = threading.Event()
-    threading.Thread(target=lambda: (sys.stdin.read(), stopped.set()), daemon=True).start()
-    period = 1.0 / rate_hz
-    slots = 10  # publish a tenth of the resources every tenth of the period
-    per_slot = -(-count // slots)
-    sent, late, seq = 0, 0, 0
-    began = next_at = time.monotonic()
-    print("ready", flush=True)
-    while not stopped.is_set():
-        seq += 1
-        for slot in range(slots):
-            for i in range(slot * per_slot, min(count, (slot + 1) * per_slot)):
-                codec = codecs[i]
-                payload = latest.get(codec.resource)
-                if payload is not None and payload is not decoded_from[i]:
-                    with contextlib.suppress(MessageError):
-                        mirrors[i] = codec.decode_command(payload)
-                    decoded_from[i] = payload
-                mirror = mirrors[i]
-                state = codec.State(schema=SCHEMA, model_hash=codec.model_hash, run_m=False, tqr_m=False,
-                                    fail_m=False, mirror=mirror,
-                                    status=HubStatus.OK if mirror is not None else HubStatus.NO_COMMAND,
-                                    detail="", seq=seq, time=time.time(), hub=hub)  # as a hub stamps it
-                publishers[i].put(encode(state))
-                sent += 1
-            next_at += period / slots
-            delay = next_at - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -period:
-                late += 1
-                next_at = time.monotonic()
-    elapsed = time.monotonic() - began
-    subscriber.undeclare()
-    for keyexpr in keyexprs:
-        session.undeclare(keyexpr)
-    token.undeclare()
-    session.close()
-    print(json.dumps({"sent": sent, "elapsed": elapsed, "late_periods": late}), flush=True)
 
 
 # --- (b) one step: a controller and load generators with N resources ---------------------------------
@@ -254,7 +138,7 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
             statuses = bus.subscribe(keys.ctl("status"), coalesce=False, maxlen=None)
             for k, served in enumerate(generator_slices(resources)):
                 gens.append(subprocess.Popen(
-                    [sys.executable, __file__, "--generator", f"tcp/127.0.0.1:{port}", station, f"gen{k}",
+                    [sys.executable, str(HERE / "bench_station_load.py"), f"tcp/127.0.0.1:{port}", station, f"gen{k}",
                      str(resources), str(served.start), str(served.stop)],
                     cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE))
             for gen in gens:
@@ -427,13 +311,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a smoke run in under a minute")
     parser.add_argument("--max-resources", type=int, help="step the capacity up to this many resources")
-    parser.add_argument("--generator", nargs=6, metavar=("ENDPOINT", "STATION", "HUB", "N", "FIRST", "STOP"),
-                        help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.generator:
-        endpoint, station, hub, n, first, stop_at = args.generator
-        generator(endpoint, station, hub, int(n), range(int(first), int(stop_at)), HUB_RATE_HZ)
-        return
 
     import bench_bus
 
