@@ -32,7 +32,7 @@ from controller.console_link import ConsoleLink
 from controller.console_station import StationInfo
 from tests.fault_station.harness import ROOT, Station, write_config
 
-pytestmark = pytest.mark.timeout(360)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(360)]
 
 CONSOLE_STATION = ROOT / "tests" / "console_station" / "hubs.toml"
 REFERENCE_STATION = ROOT / "hubs.toml"

@@ -31,7 +31,7 @@ from deploy_support import REPO, Run, hubctl, station_toml
 from common.process import free_port
 from deploy.remote.wheel import Wheel, build_wheel
 
-pytestmark = pytest.mark.timeout(120)  # a hung ssh must not hang the suite
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]  # a hung ssh must not hang the suite
 
 SSHD = shutil.which("sshd") or next((p for p in ("/usr/sbin/sshd",) if os.access(p, os.X_OK)), None)
 UNIT = "statehub-hub-pi-tool.service"

@@ -54,6 +54,7 @@ def station(tmp_path: Path) -> Iterator[Station]:
 
 # --- 1. kill -9 the nutrunner's hub while it tightens, restart it --------------------------------
 
+@pytest.mark.slow
 def test_nutrunner_hub_killed_mid_tightening_restarts_and_each_bolt_is_tightened_once(station: Station) -> None:
     station.start()
     nr_running_on_bolt(station, 2)  # one bolt done, the second under way
@@ -79,6 +80,7 @@ def test_nutrunner_hub_killed_mid_tightening_restarts_and_each_bolt_is_tightened
 
 # --- 2. kill -9 the controller mid-run, restart it on the same database -----------------------
 
+@pytest.mark.slow
 def test_controller_killed_mid_run_resumes_from_its_database_and_redoes_nothing(station: Station) -> None:
     station.start()
     first_controller = station.wait_for(station.watch.status, 5, "a status").controller
@@ -131,6 +133,7 @@ def test_controller_killed_mid_run_resumes_from_its_database_and_redoes_nothing(
 
 # --- 3. SIGSTOP a hub: unhealthy within 2 s, nothing depending on it moves, resumes on SIGCONT ----------
 
+@pytest.mark.slow
 def test_frozen_hub_is_unhealthy_within_2_s_nothing_depending_on_it_is_commanded_and_control_resumes(
         station: Station) -> None:
     station.start()
@@ -210,6 +213,7 @@ def test_a_result_that_arrives_while_another_resource_is_unhealthy_is_recorded_o
 
 # --- 4. a hub that receives commands but does not apply them ----------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("applies", [1, 0], ids=["stale-mirror", "no-mirror"])
 def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station: Station, applies: int) -> None:
     """pi-tool is tests/fault_station/lazy_hub.py: it applies the first `applies` commands it receives and
@@ -292,6 +296,7 @@ def test_mirror_lag_is_measured_from_the_oldest_command_not_mirrored() -> None:
 
 # --- 5. garbage, truncated, wrong-schema and out-of-domain payloads on every key ------------------
 
+@pytest.mark.slow
 def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station) -> None:
     station.start()
     nr_running_on_bolt(station, 1)

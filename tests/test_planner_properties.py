@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import random
 
+import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -181,6 +182,7 @@ def problems(draw: st.DrawFn) -> Problem:
     return Generator(draw(st.randoms(use_true_random=False))).problem()
 
 
+@pytest.mark.slow
 @settings(max_examples=600, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(problems())
 def test_astar_is_as_short_as_breadth_first(problem: tuple) -> None:
@@ -259,6 +261,7 @@ def stations(draw: st.DrawFn) -> tuple[CompiledModel, tuple, dict[str, Predicate
     return compiled, state, goals, forbidden
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(stations())
 def test_astar_is_as_short_as_breadth_first_on_stations(problem: tuple) -> None:

@@ -10,6 +10,7 @@ otherwise the failure names the seed that rebuilds it.
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
@@ -29,6 +30,7 @@ def unreachable(model: Model) -> list[str]:
     return check_operations(model, compiled, Planner(compiled, supervisor.forbidden), time_limit=5.0)
 
 
+@pytest.mark.slow
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=SEEDS, fail_rate=st.sampled_from([0.0, 0.0, 0.2]))
 # These stalled with "stuck: nothing can happen; executing: none": an inspection recorded as the

@@ -121,6 +121,7 @@ async def _selftest(hub: str, world: SimWorld) -> tuple[int, str]:
     return process.returncode or 0, out.decode(errors="replace")
 
 
+@pytest.mark.slow
 async def test_selftest_passes_for_every_hub_with_the_simulators_and_fails_when_one_is_down(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(ROOT)
@@ -141,6 +142,7 @@ async def test_selftest_passes_for_every_hub_with_the_simulators_and_fails_when_
 
 # --- the devices follow the model -----------------------------------------------------------------
 
+@pytest.mark.slow
 async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The reference story's device steps, commanded by the test; every trace is the model's."""
     monkeypatch.chdir(ROOT)
@@ -213,6 +215,7 @@ async def _run(config: Path, run_dir: Path, speed: float, time_limit: float) -> 
     return code, lines
 
 
+@pytest.mark.slow
 async def test_small_station_runs_to_completion_in_sim_mode(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(ROOT)
     began = time.monotonic()
@@ -224,6 +227,7 @@ async def test_small_station_runs_to_completion_in_sim_mode(tmp_path: Path, monk
     print(f"small station in sim mode: {time.monotonic() - began:.1f} s\n{lines[-1] if lines else ''}")
 
 
+@pytest.mark.slow
 async def test_reference_station_runs_to_completion_in_sim_mode(tmp_path: Path,
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """The demonstrator of hubs.toml, every device with a protocol simulator on its real driver."""

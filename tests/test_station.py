@@ -247,6 +247,7 @@ def test_initial_state_is_allowed(station: Model) -> None:
     assert [s.name for s in station.specifications if s.forbidden.eval(state)] == []
 
 
+@pytest.mark.slow
 def test_each_operation_reaches_its_goal_in_order(station: Model) -> None:
     """Run the operations one after the other: each precondition holds when its turn
     comes, and its goal is reachable without entering a forbidden state."""

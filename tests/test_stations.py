@@ -61,6 +61,7 @@ def test_station_is_valid_and_of_a_realistic_size(station: tuple[str, Model]) ->
     assert [s.name for s in model.specifications if s.forbidden.eval(state)] == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(STATIONS))
 def test_hubctl_check_finds_every_operation_reachable(name: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert hubctl(["check", "--model", f"common.stations.{name}:build_model"]) == 0
