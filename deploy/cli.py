@@ -155,7 +155,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 
 
 def cmd_console(args: argparse.Namespace) -> int:
-    from controller.console import run_console
+    from controller.console.app import run_console
 
     listen = [] if args.listen == "none" else [args.listen]
     return run_console(args.config, connect=args.connect, listen=listen)

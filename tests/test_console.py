@@ -27,9 +27,9 @@ from textual.pilot import Pilot
 from textual.widgets import Static
 
 from common.ctl import ConsoleReply
-from controller.console import ConsoleApp
-from controller.console_link import ConsoleLink
-from controller.console_station import StationInfo
+from controller.console.app import ConsoleApp
+from controller.console.link import ConsoleLink
+from controller.console.station import StationInfo
 from tests.fault_station.harness import ROOT, Station, write_config
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(360)]

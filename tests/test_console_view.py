@@ -8,9 +8,9 @@ from textual.app import App, ComposeResult
 from common.config import load_station
 from common.ctl import OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
 from common.model import Kind
-from controller.console_station import StationInfo
-from controller.console_table import RowTable
-from controller.console_view import (
+from controller.console.station import StationInfo
+from controller.console.table import RowTable
+from controller.console.view import (
     RECENT_S,
     EventFeed,
     OperationClock,
@@ -122,7 +122,7 @@ def test_console_finds_the_controller_from_hubs_toml_and_parses_its_options() ->
 
 
 def test_resource_rows_show_health_and_a_note_about_another_controller() -> None:
-    from controller.console_view import resource_rows
+    from controller.console.view import resource_rows
 
     info = StationInfo(station="s", kinds={})
     health = [ResourceHealthInfo("nr", "pi-tool", True, age=0.1),

@@ -31,9 +31,9 @@ from common.ctl import (
     StatusMessage,
 )
 from common.model import Kind
-from controller.console import ConsoleApp
-from controller.console_link import SelftestDevice, SelftestSummary
-from controller.console_station import StationInfo
+from controller.console.app import ConsoleApp
+from controller.console.link import SelftestDevice, SelftestSummary
+from controller.console.station import StationInfo
 
 OPERATIONS = 200
 PLAN_STEPS = 60
@@ -42,7 +42,7 @@ KINDS = (("run_c", Kind.COMMAND), ("run_m", Kind.MEASURED), ("tqr_m", Kind.MEASU
 
 
 class CannedFeed:
-    """A station that changes a little every round, as `Feed` (controller/console_link.py)."""
+    """A station that changes a little every round, as `Feed` (controller/console/link.py)."""
 
     def __init__(self, resources: int, seed: int = 0) -> None:
         self.random = random.Random(seed)

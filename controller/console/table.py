@@ -16,7 +16,7 @@ from rich.cells import cell_len
 from rich.text import Text
 from textual.widgets import DataTable
 
-from .console_view import Cell, Row
+from .view import Cell, Row
 
 REMOVALS_BEFORE_REBUILD = 32  # removing a row is linear in the table: beyond this, rebuild once
 

@@ -1,6 +1,6 @@
 """The console's panels as rows of text: pure functions of what the controller published.
 
-Each panel is a dict `key -> row` (a tuple of cells); `RowTable` (console_table.py)
+Each panel is a dict `key -> row` (a tuple of cells); `RowTable` (table.py)
 updates only the cells that changed. Times shown are coarse (whole seconds; a hub's
 state age as "< 1 s" while it is fresh) so that a steady station yields unchanged rows,
 and a redraw costs what actually changed.
@@ -17,8 +17,8 @@ from common.ctl import OperationInfo, StateSnapshot, StatusMessage
 from common.model import Kind, ParseError, Value, parse_action
 from common.model.predicates import Ref, format_value
 
-from .console_link import SelftestSummary
-from .console_station import StationInfo
+from .link import SelftestSummary
+from .station import StationInfo
 
 Cell = str | Text
 Row = tuple[Cell, ...]

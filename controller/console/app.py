@@ -12,7 +12,7 @@ resume, `c` operator confirm, `f` force (`path = value`), `u` unforce (the varia
 the cursor), `/` filter, `k` kind, `n` recently changed, `q` quit.
 
 The screen is redrawn at most `REFRESH_S` apart and only when something arrived; the
-tables change only the cells that differ (console_table.py), so 500 resources cost
+tables change only the cells that differ (table.py), so 500 resources cost
 what changes, not what exists.
 """
 
@@ -34,10 +34,10 @@ from textual.worker import Worker, WorkerState
 
 from common.ctl import ConsoleReply, ConsoleRequest, StatusMessage
 
-from .console_link import ConsoleLink, Feed
-from .console_station import StationInfo
-from .console_table import RowTable
-from .console_view import (
+from .link import ConsoleLink, Feed
+from .station import StationInfo
+from .table import RowTable
+from .view import (
     OPERATION_COLUMNS,
     PLAN_COLUMNS,
     RESOURCE_COLUMNS,
