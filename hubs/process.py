@@ -91,8 +91,9 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
 
 async def run_selftest(config_path: str, hub: str, *, mode: str | None = None,
                        overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
+    from common.selftest import format_report
+
     from .factory import build_drivers
-    from .selftest import format_report
     from .selftest import run_selftest as selftest
 
     config, model = load_station(config_path)

@@ -2,7 +2,7 @@
 
 The hub publishes the report at start (and answers queries for it); `hubctl selftest
 HUB` runs the same checks without the bus, prints them and exits non-zero on a
-failure so that systemd refuses to start a broken hub.
+failure so that systemd refuses to start a broken hub. The report itself: common/selftest.py.
 """
 
 from __future__ import annotations
@@ -12,46 +12,15 @@ import contextlib
 import time
 from collections.abc import Iterable, Mapping
 
-import msgspec
-
-from common.messages import Message
+from common.selftest import CheckMessage, DeviceReport, SelftestMessage
 
 from .drivers.base import Driver, SelftestReport
-
-
-class CheckMessage(msgspec.Struct, frozen=True):
-    name: str
-    ok: bool
-    detail: str = ""
-
-
-class DeviceReport(msgspec.Struct, frozen=True):
-    resource: str
-    ok: bool
-    checks: list[CheckMessage]
-
-
-class SelftestMessage(Message, kw_only=True):
-    hub: str
-    ok: bool
-    devices: list[DeviceReport]
-    time: float
 
 
 def report_message(hub: str, reports: Iterable[SelftestReport]) -> SelftestMessage:
     devices = [DeviceReport(r.resource, r.ok, [CheckMessage(c.name, c.ok, c.detail) for c in r.checks])
                for r in reports]
     return SelftestMessage(hub=hub, ok=all(d.ok for d in devices), devices=devices, time=time.time())
-
-
-def format_report(message: SelftestMessage) -> str:
-    lines = [f"self-test of hub {message.hub}: {'PASS' if message.ok else 'FAIL'}"]
-    for device in message.devices:
-        lines.append(f"  {device.resource}: {'ok' if device.ok else 'FAILED'}")
-        for check in device.checks:
-            mark = "ok  " if check.ok else "FAIL"
-            lines.append(f"    [{mark}] {check.name}" + (f": {check.detail}" if check.detail else ""))
-    return "\n".join(lines)
 
 
 async def run_selftest(hub: str, drivers: Mapping[str, Driver], connect_timeout: float = 3.0) -> SelftestMessage:

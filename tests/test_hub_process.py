@@ -19,7 +19,7 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec, HubStatus, decode
 from common.process import free_port
-from hubs.selftest import SelftestMessage
+from common.selftest import SelftestMessage
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hubs.toml"

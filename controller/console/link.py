@@ -27,6 +27,7 @@ import zenoh
 from common.bus import Bus, BusClosed, Keys, Sample, Subscription, zenoh_config
 from common.ctl import ConsoleReply, ConsoleRequest, StateSnapshot, StatusMessage
 from common.messages import Message, MessageError, decode, encode
+from common.selftest import SelftestMessage
 
 log = logging.getLogger("statehub.console")
 
@@ -34,26 +35,12 @@ REQUEST_TIMEOUT_S = 3.0
 SELFTEST_QUERY_PERIOD_S = 2.0
 
 
-class SelftestDevice(msgspec.Struct, frozen=True):
-    resource: str
-    ok: bool
-
-
-class SelftestSummary(Message, kw_only=True):
-    """The part of a hub's self-test report (hubs/selftest.py SelftestMessage) the console shows; the
-    controller side never imports hubs, and msgspec skips the fields not named here."""
-
-    hub: str
-    ok: bool
-    devices: list[SelftestDevice]
-
-
 class Feed(Protocol):
     """What the console app reads: a live `ConsoleLink`, or a canned feed in benchmarks."""
 
     status: StatusMessage | None
     snapshot: StateSnapshot | None
-    selftests: dict[str, SelftestSummary]
+    selftests: dict[str, SelftestMessage]
     version: int
     connected: bool
 
@@ -77,7 +64,7 @@ class ConsoleLink:
         self.config = zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
         self.snapshot: StateSnapshot | None = None
-        self.selftests: dict[str, SelftestSummary] = {}
+        self.selftests: dict[str, SelftestMessage] = {}
         self.version = 0
         self.undecodable = 0
         self.origin = origin()
@@ -158,8 +145,8 @@ class ConsoleLink:
             self.version += 1
 
     def _on_selftest(self, sample: Sample) -> None:
-        report = self._decode(sample, SelftestSummary)
-        if isinstance(report, SelftestSummary):
+        report = self._decode(sample, SelftestMessage)
+        if isinstance(report, SelftestMessage):
             self.selftests[report.hub] = report
             self.version += 1
 

@@ -16,8 +16,8 @@ from rich.text import Text
 from common.ctl import OperationInfo, StateSnapshot, StatusMessage
 from common.model import Kind, ParseError, Value, parse_action
 from common.model.predicates import Ref, format_value
+from common.selftest import SelftestMessage
 
-from .link import SelftestSummary
 from .station import StationInfo
 
 Cell = str | Text
@@ -52,7 +52,7 @@ def duration(seconds: float) -> str:
 
 # --- resources ---------------------------------------------------------------------------------
 
-def resource_rows(status: StatusMessage, info: StationInfo, selftests: Mapping[str, SelftestSummary]) -> dict[str, Row]:
+def resource_rows(status: StatusMessage, info: StationInfo, selftests: Mapping[str, SelftestMessage]) -> dict[str, Row]:
     rows: dict[str, Row] = {}
     for h in status.health:
         if h.healthy:
@@ -66,7 +66,7 @@ def resource_rows(status: StatusMessage, info: StationInfo, selftests: Mapping[s
     return rows
 
 
-def _selftest(report: SelftestSummary | None, resource: str) -> Cell:
+def _selftest(report: SelftestMessage | None, resource: str) -> Cell:
     if report is None:
         return "-"
     device = next((d for d in report.devices if d.resource == resource), None)

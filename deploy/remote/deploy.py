@@ -37,7 +37,7 @@ from typing import TextIO
 
 from common.bus import Bus
 from common.config import StationConfig, load_station
-from hubs.selftest import format_report
+from common.selftest import format_report
 
 from . import scripts
 from .hubwait import DEFAULT_LISTEN, HubWaitError, HubWatch, watch_config

@@ -23,7 +23,7 @@ import zenoh
 from common.bus import Bus, Keys, LivelinessEvent, Sample, Subscription, zenoh_config
 from common.config import StationConfig
 from common.messages import MessageError, decode
-from hubs.selftest import SelftestMessage
+from common.selftest import SelftestMessage
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:0"
 _WILDCARD_HOSTS = ("0.0.0.0", "[::]", "::")

@@ -31,8 +31,8 @@ from common.ctl import (
     StatusMessage,
 )
 from common.model import Kind
+from common.selftest import DeviceReport, SelftestMessage
 from controller.console.app import ConsoleApp
-from controller.console.link import SelftestDevice, SelftestSummary
 from controller.console.station import StationInfo
 
 OPERATIONS = 200
@@ -58,8 +58,8 @@ class CannedFeed:
         self.snapshot: StateSnapshot | None = StateSnapshot(
             time=time.time(), values={f"{r}.{name}": False if name != "count_e" else 0
                                       for r in self.names for name, _ in KINDS})
-        self.selftests = {f"hub{i}": SelftestSummary(hub=f"hub{i}", ok=True, devices=[
-            SelftestDevice(r, True) for r in self.names[i * 8:(i + 1) * 8]]) for i in range((resources + 7) // 8)}
+        self.selftests = {f"hub{i}": SelftestMessage(hub=f"hub{i}", ok=True, time=time.time(), devices=[
+            DeviceReport(r, True, []) for r in self.names[i * 8:(i + 1) * 8]]) for i in range((resources + 7) // 8)}
         self.version = 0
         self.connected = True
 
