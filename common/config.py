@@ -52,7 +52,6 @@ the model lacks, a model resource no hub serves, a device type differing from th
 
 from __future__ import annotations
 
-import importlib
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
@@ -63,6 +62,7 @@ from typing import Annotated, Any, Literal, TypeVar
 import msgspec
 
 from common.model import Model
+from common.stations import ModelLoadError, load_model
 
 DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
 DEVICE_MODES = ("emulate", "sim", "real")
@@ -171,7 +171,12 @@ class StationConfig(msgspec.Struct, frozen=True):
 
     def load_model(self) -> Model:
         """Import the station model named by [station] model; errors name the file and line."""
-        return _import_model(self)
+        try:
+            return load_model(self.station.model)
+        except ModelLoadError as exc:
+            lines = KeyLines(Path(self.path).read_text(encoding="utf-8")) if Path(self.path).is_file() else None
+            line = lines.line_of(("station", "model")) if lines else None
+            raise ConfigError([ConfigProblem(self.path, line, "station.model", str(exc))]) from exc
 
 
 # --- errors -------------------------------------------------------------------------------
@@ -468,29 +473,6 @@ def _toml_problem(file: str, message: str) -> ConfigProblem:
 
 # --- the station model ----------------------------------------------------------------------
 
-def _import_model(config: StationConfig) -> Model:
-    spec = config.station.model
-    lines = KeyLines(Path(config.path).read_text(encoding="utf-8")) if Path(config.path).is_file() else None
-    line = lines.line_of(("station", "model")) if lines else None
-
-    def fail(message: str) -> ConfigError:
-        return ConfigError([ConfigProblem(config.path, line, "station.model", message)])
-
-    module_name, _, attribute = spec.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:
-        raise fail(f"cannot import module {module_name!r}: {type(exc).__name__}: {exc}") from exc
-    try:
-        target = getattr(module, attribute)
-    except AttributeError:
-        raise fail(f"module {module_name!r} has no attribute {attribute!r}") from None
-    model = target() if callable(target) and not isinstance(target, Model) else target
-    if not isinstance(model, Model):
-        raise fail(f"{spec} gave a {type(model).__name__}, not a Model")
-    return model
-
-
 def _check_type(checker: _Checker, hub: str, resource: str, device_type: str, model: Model) -> None:
     model_resource = model.resource_by_name.get(resource)
     if model_resource is None or not model_resource.device_type or model_resource.device_type == device_type:
@@ -532,13 +514,11 @@ def _type_problems_of_broken_file(text: str, file: str) -> list[ConfigProblem]:
     "every problem at once". Best effort: nothing if the model cannot be found or built."""
     try:
         data = tomllib.loads(text)
-        module_name, _, attribute = str(data["station"]["model"]).partition(":")
-        target = getattr(importlib.import_module(module_name), attribute)
-        model = target() if callable(target) and not isinstance(target, Model) else target
+        model = load_model(str(data["station"]["model"]))
         hubs = data.get("hubs", {})
     except Exception:  # any failure here is already reported, or will be once the file is fixed
         return []
-    if not isinstance(model, Model) or not isinstance(hubs, dict):
+    if not isinstance(hubs, dict):
         return []
     checker = _Checker(file, text)
     for hub, table in hubs.items():

@@ -12,11 +12,10 @@ from pathlib import Path
 from common.config import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
 from common.model import Model, ModelError, ParseError, parse_predicate
 from common.process import positive
+from common.stations import DEFAULT_MODEL, ModelLoadError, load_model
 from controller import process as controller_process
 from hubs import process as hub_process
 from hubs.process import parse_failures
-
-from .models import DEFAULT_MODEL, ModelLoadError, load_model
 
 
 def _fail(message: str, code: int = 2) -> int:

@@ -10,22 +10,24 @@ DEFAULT_MODEL = "common.stations.engine_assembly:build_model"
 
 
 class ModelLoadError(Exception):
-    pass
+    """A model reference that does not give a Model; the message says which part is wrong (a caller that
+    read the reference from a file adds where: `StationConfig.load_model`)."""
 
 
 def load_model(reference: str = DEFAULT_MODEL) -> Model:
-    """The model a `module:function` reference builds; errors say which part is wrong."""
-    module_name, _, function_name = reference.partition(":")
-    if not module_name or not function_name:
+    """The model a `module:function` reference builds (`module:attribute` naming a Model works too)."""
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
         raise ModelLoadError(f"model reference {reference!r} must look like 'package.module:function'")
     try:
         module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ModelLoadError(f"cannot import station module {module_name!r} (from {reference!r}): {exc}") from exc
-    factory = getattr(module, function_name, None)
-    if not callable(factory):
-        raise ModelLoadError(f"station module {module_name!r} has no function {function_name!r}")
-    model = factory()
+    except Exception as exc:  # a station module that fails to import is reported, whatever it raised
+        raise ModelLoadError(f"cannot import module {module_name!r}: {type(exc).__name__}: {exc}") from exc
+    try:
+        target = getattr(module, attribute)
+    except AttributeError:
+        raise ModelLoadError(f"module {module_name!r} has no attribute {attribute!r}") from None
+    model = target() if callable(target) and not isinstance(target, Model) else target
     if not isinstance(model, Model):
-        raise ModelLoadError(f"{reference} returned {type(model).__name__}, not a Model")
+        raise ModelLoadError(f"{reference} gave a {type(model).__name__}, not a Model")
     return model

@@ -23,8 +23,7 @@ from typing import TYPE_CHECKING
 
 from common.config import ConfigError, StationConfig, load_config, load_station
 from common.model import Model, ModelError
-
-from ..models import ModelLoadError, load_model
+from common.stations import ModelLoadError, load_model
 
 if TYPE_CHECKING:
     from .link import BusThread
