@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
 from .control import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, PlanRequest, anytime_answers, live_budget
-from .planner import NoPlan, Plan, Planner
+from .planner import NoPlan, Plan
 
 log = logging.getLogger(__name__)
 
@@ -40,15 +40,12 @@ class Answer:
 
 
 def _serve(requests: Connection, answers: Connection, model_reference: str, limits: Limits) -> None:
-    from common.model.compiled import CompiledModel
     from common.stations import load_model
 
-    from .synthesis import synthesize
+    from .stack import build_controller_stack
 
-    model = load_model(model_reference)
-    supervisor = synthesize(model)
-    planner = Planner(CompiledModel(model, supervisor.guards), supervisor.forbidden)
-    planner.prepare()  # the satisficing member's tables, before the first request
+    # The satisficing member's tables are built before the first request.
+    planner = build_controller_stack(load_model(model_reference), prepare=True).planner
     while True:
         request: PlanRequest | None = requests.recv()
         while request is not None and requests.poll():

@@ -24,14 +24,14 @@ from common.config import StationConfig
 from common.ctl import LoopStats, OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
-from common.model.compiled import CompiledModel, State
+from common.model.compiled import State
 
-from .control import ControlCore, PlanRequest
-from .planner import NoPlan, Plan, Planner, PlanStep
+from .control import PlanRequest
+from .planner import NoPlan, Plan, PlanStep
 from .planworker import PlannerProcess
 from .requests import Requests
+from .stack import build_controller_stack
 from .state import StateStore
-from .synthesis import synthesize
 from .watchdog import Watchdog
 
 log = logging.getLogger("statehub.controller")
@@ -79,10 +79,9 @@ class ControllerService:
         self.bus = bus
         self.keys = Keys(config.station.name)
         self.controller_id = f"{config.controller.name}-{uuid.uuid4().hex[:8]}"
-        supervisor = synthesize(model)
-        self.compiled = CompiledModel(model, supervisor.guards)
-        self.planner = Planner(self.compiled, supervisor.forbidden)
-        self.core = ControlCore(self.compiled, self.planner)
+        stack = build_controller_stack(model)
+        self.compiled = stack.compiled
+        self.core = stack.control_core()
         self.store = StateStore(db or config.controller.db)
         self.hubs_of = {r: hub.name for r, hub in config.resources.items()}
         self.watchdog = Watchdog(self.hubs_of, stale_after=config.controller.stale_after_s,

@@ -24,23 +24,21 @@ def _fail(message: str, code: int = 2) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from common.model.compiled import CompiledModel
-    from controller.planner import Planner, check_operations
-    from controller.synthesis import synthesize
+    from controller.planner import check_operations
+    from controller.stack import build_controller_stack
 
     model = load_model(args.model)
     print(f"model {model.name}: {len(model.resources)} resources, {len(model.variables)} variables, "
           f"{len(model.transitions)} transitions, {len(model.operations)} operations, "
           f"{len(model.specifications)} specifications: valid")
-    supervisor = synthesize(model)
+    stack = build_controller_stack(model)
+    supervisor = stack.supervisor
     print(f"supervisor: {len(supervisor.guards)} deliberate transitions get synthesized guards")
     for name, converged in supervisor.converged.items():
         if not converged:
             print(f"  warning: bad states of {name!r} did not converge within the round limit")
-    compiled = CompiledModel(model, supervisor.guards)
-    planner = Planner(compiled, supervisor.forbidden)
     began = time.perf_counter()
-    problems = check_operations(model, compiled, planner)
+    problems = check_operations(model, stack.compiled, stack.planner)
     for problem in problems:
         print(f"  unreachable: {problem}")
     print(f"checked {len(model.operations)} operations in {time.perf_counter() - began:.2f} s: "
@@ -49,15 +47,14 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from common.model.compiled import CompiledModel
-    from controller.planner import NoPlan, Planner
-    from controller.synthesis import synthesize
+    from controller.planner import Budget, NoPlan
+    from controller.stack import build_controller_stack
 
     from .local.statefile import load_state
 
     model = load_model(args.model)
-    supervisor = synthesize(model)
-    compiled = CompiledModel(model, supervisor.guards)
+    stack = build_controller_stack(model)
+    compiled = stack.compiled
     goals = {}
     for text in args.goal:
         if text in model.operation_by_name:
@@ -74,12 +71,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     start = model.initial_state()
     if args.start:
         start.update(load_state(args.start, model))
-    planner = Planner(compiled, supervisor.forbidden)
-    from controller.planner import Budget
-
     budget = Budget(first_expansions=10_000_000, improve_expansions=10_000_000, seconds=args.time_limit,
                     improve_seconds=args.time_limit)
-    result = planner.plan(compiled.pack(start), goals, budget=budget)
+    result = stack.planner.plan(compiled.pack(start), goals, budget=budget)
     if isinstance(result, NoPlan):
         print(f"no plan: {result.reason}")
         if result.unreachable:

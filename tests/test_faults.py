@@ -194,13 +194,11 @@ def test_a_result_that_arrives_while_another_resource_is_unhealthy_is_recorded_o
     The nutrunner is healthy and resets itself (its automatic `run_c := false`); the tracking that
     records the bolt reads the robot's last known pose. Held back with the robot, the observation
     would be lost once the nutrunner reset, and the bolt tightened again."""
-    from common.model.compiled import CompiledModel
     from controller.engine import Engine
-    from controller.synthesis import synthesize
+    from controller.stack import build_controller_stack
     from tests.fault_station.model import build_model
 
-    model = build_model()
-    compiled = CompiledModel(model, synthesize(model).guards)
+    compiled = build_controller_stack(build_model()).compiled
     torque = compiled.with_values(compiled.initial(), {"ur.ref_pos_c": "at_bolt1", "ur.pos_m": "at_bolt1",
                                                        "nr.run_c": True, "nr.run_m": True, "nr.tqr_m": True})
     for unhealthy, run_c in ((set(), False), ({"ur"}, False), ({"nr"}, True), ({"nr", "ur"}, True)):

@@ -14,7 +14,7 @@ from common.stations import engine_assembly, synthetic
 from controller.planner import Budget, NoPlan, Plan, Planner, validate_plan
 from controller.planner.relaxed import RelaxedModel
 from controller.planner.steps import StepSystem
-from controller.synthesis import synthesize
+from controller.stack import build_controller_stack
 from deploy.local.statefile import load_state
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,17 +24,16 @@ def test_robot_home_from_the_state_where_the_old_planner_stalled_has_a_first_pla
     """The issue's case: A* needed 20,803 expansions (11 s); the operator's confirmation, the camera
     and the nutrunner resetting are never preferred moves, so the first plan comes after a few dozen."""
     model = engine_assembly.build_model()
-    supervisor = synthesize(model)
-    compiled = CompiledModel(model, supervisor.guards)
+    stack = build_controller_stack(model)
+    compiled, planner = stack.compiled, stack.planner
     values = model.initial_state()
     values.update(load_state(str(ROOT / "tests/bench/robothome_state.toml"), model))
     start = compiled.pack(values)
     goal = model.operation_by_name["RobotHome"].goal
-    planner = Planner(compiled, supervisor.forbidden)
     first = next(iter(planner.plan_anytime(start, {"RobotHome": goal}, budget=Budget(first_expansions=200))))
     assert isinstance(first, Plan), first
     assert first.stats.method == "greedy" and first.stats.expanded <= 200
-    validate_plan(compiled, start, first, goal, supervisor.forbidden)
+    validate_plan(compiled, start, first, goal, stack.supervisor.forbidden)
     assert len(first.steps) == 17  # the shortest plan the old A* found after 11 s
 
 

@@ -15,9 +15,9 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from common.model import Model
-from common.model.compiled import CompiledModel
 from common.stations.random_station import build_random_station
-from controller.planner import Planner, check_operations
+from controller.planner import check_operations
+from controller.stack import build_controller_stack
 from controller.synthesis import synthesize
 from deploy.local.inprocess import run_in_process
 
@@ -25,9 +25,8 @@ SEEDS = st.integers(min_value=0, max_value=2**31 - 1)
 
 
 def unreachable(model: Model) -> list[str]:
-    supervisor = synthesize(model)
-    compiled = CompiledModel(model, supervisor.guards)
-    return check_operations(model, compiled, Planner(compiled, supervisor.forbidden), time_limit=5.0)
+    stack = build_controller_stack(model)
+    return check_operations(model, stack.compiled, stack.planner, time_limit=5.0)
 
 
 @pytest.mark.slow

@@ -15,12 +15,9 @@ from common.bus import Request
 from common.ctl import ConsoleReply, ConsoleRequest
 from common.messages import decode, encode
 from common.model import Domain, Model, Value, estimated, operation, tracking
-from common.model.compiled import CompiledModel
 from common.resources import nutrunner, operator, ur
-from controller.control import ControlCore
-from controller.planner import Planner
 from controller.requests import Requests, coerce
-from controller.synthesis import synthesize
+from controller.stack import build_controller_stack
 
 BOLTS = (1, 2)
 FRAME = "engine.frame_e"
@@ -53,9 +50,9 @@ def build_model() -> Model:
 class Rig:
     def __init__(self) -> None:
         model = build_model()
-        supervisor = synthesize(model)
-        self.compiled = CompiledModel(model, supervisor.guards)
-        self.core = ControlCore(self.compiled, Planner(self.compiled, supervisor.forbidden))
+        stack = build_controller_stack(model)
+        self.compiled = stack.compiled
+        self.core = stack.control_core()
         self.persisted: list[list[str]] = []
         self.wakes = 0
         self.requests = Requests(self.core, persist=self.persisted.append, wake=self._wake)

@@ -11,10 +11,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from common.model import Model
-from common.model.compiled import CompiledModel
-from controller.control import VIRTUAL_BUDGET, ControlCore
-from controller.planner import Budget, Planner
-from controller.synthesis import synthesize
+from controller.control import VIRTUAL_BUDGET
+from controller.planner import Budget
+from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
 
 
@@ -50,12 +49,11 @@ def run_in_process(
     budget: Budget = VIRTUAL_BUDGET,
 ) -> RunSummary:
     say = report or (lambda _line: None)
-    guards = synthesize(model)
-    compiled = CompiledModel(model, guards.guards)
-    planner = Planner(compiled, guards.forbidden)
-    planner.prepare()  # the model tables, before the first request, as the controller's planner process
+    # The model tables are built before the first request, as the controller's planner process does.
+    stack = build_controller_stack(model, prepare=True)
+    compiled = stack.compiled
     now = 0.0
-    core = ControlCore(compiled, planner, clock=lambda: now, budget=budget)
+    core = stack.control_core(lambda: now, budget=budget)
     core.request(*(op.name for op in model.operations))
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure)
     deliberate = {t.name for t in compiled.deliberate}

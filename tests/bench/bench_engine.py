@@ -13,11 +13,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from common.model import parse_predicate
-from common.model.compiled import CompiledModel
 from common.stations.engine_assembly import BOLT_COUNT, build_model
 from controller.engine import Engine, PlanProgress
-from controller.planner import Plan, Planner
-from controller.synthesis import synthesize
+from controller.planner import Plan
+from controller.stack import build_controller_stack
 
 
 def timed(fn, rounds: int) -> list[float]:  # type: ignore[no-untyped-def]
@@ -31,8 +30,8 @@ def timed(fn, rounds: int) -> list[float]:  # type: ignore[no-untyped-def]
 
 def main() -> None:
     model = build_model()
-    supervisor = synthesize(model)
-    compiled = CompiledModel(model, supervisor.guards)
+    stack = build_controller_stack(model)
+    compiled = stack.compiled
     engine = Engine(compiled)
     requested = [op.name for op in model.operations]
     bolts_placed = {f"engine.bolt{i}_e": "placed" for i in range(1, BOLT_COUNT + 1)}
@@ -41,7 +40,7 @@ def main() -> None:
         "rsp.locked_m": True, "dock.nutrunner_home_m": False, "ur.pos_m": "above_engine",
         "ur.ref_pos_c": "above_engine"})
     goals = {f"TightenBolt{i}": parse_predicate(f"engine.bolt{i}_e == tightened") for i in range(1, BOLT_COUNT + 1)}
-    plan = Planner(compiled, supervisor.forbidden).plan(start, goals)
+    plan = stack.planner.plan(start, goals)
     rows = []
     idle = timed(lambda: engine.tick(compiled.initial(), requested=requested), 2000)
     rows.append(("idle, all operations requested", idle))

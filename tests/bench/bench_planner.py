@@ -42,7 +42,7 @@ from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
 from controller.planner.search import astar
 from controller.planner.steps import stable_goal
-from controller.synthesis import synthesize
+from controller.stack import build_controller_stack
 from deploy.local.statefile import load_state
 
 HERE = Path(__file__).resolve().parent
@@ -180,8 +180,8 @@ def bench_case(case: Case, limit: float, bfs_limit: int, repeats: int) -> list[l
 
 # --- cases -----------------------------------------------------------------------------------
 def compiled_of(model: Model) -> tuple[CompiledModel, Predicate | None]:
-    supervisor = synthesize(model)
-    return CompiledModel(model, supervisor.guards), supervisor.forbidden
+    stack = build_controller_stack(model)
+    return stack.compiled, stack.supervisor.forbidden
 
 
 def walk(model: Model, compiled: CompiledModel, planner: Planner, names: list[str]) -> State:
