@@ -5,6 +5,7 @@ from __future__ import annotations
 import msgspec
 
 from common.messages import Message
+from common.model import OperationState
 from common.model.predicates import format_value
 
 
@@ -20,7 +21,7 @@ class ResourceHealthInfo(msgspec.Struct, frozen=True):
 
 class OperationInfo(msgspec.Struct, frozen=True):
     name: str
-    state: str  # initial / executing / finished / error
+    state: OperationState
     error: str = ""
     since: float = 0.0  # controller clock when it entered this state
 

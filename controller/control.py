@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 
-from common.model import Kind, Predicate, Value
+from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 
 from .engine import Engine, PlanProgress, TickResult
@@ -169,14 +169,14 @@ class ControlCore:
         self._want_plan("restored state")
 
     # --- queries ------------------------------------------------------------------------
-    def op_state(self, name: str) -> str:
-        return str(self.state[self.op_index[name]])
+    def op_state(self, name: str) -> OperationState:
+        return OperationState(self.state[self.op_index[name]])
 
     def executing(self) -> list[str]:
-        return [n for n, i in self.op_index.items() if self.state[i] in ("executing", "error")]
+        return [n for n, i in self.op_index.items() if self.state[i] in RUNNING]
 
     def all_finished(self) -> bool:
-        return all(self.state[i] == "finished" for i in self.op_index.values())
+        return all(self.state[i] == OperationState.FINISHED for i in self.op_index.values())
 
     def goals(self) -> dict[str, Predicate]:
         now = self.clock()
@@ -237,7 +237,7 @@ class ControlCore:
     def _only_finished_left(self, goals: frozenset[str]) -> bool:
         """The plan under way planned for these goals and more, and the others are finished."""
         return (self.progress is not None and not self.planning and goals < self.planned_goals
-                and all(self.op_state(n) == "finished" for n in self.planned_goals - goals))
+                and all(self.op_state(n) is OperationState.FINISHED for n in self.planned_goals - goals))
 
     def _want_plan(self, reason: str) -> None:
         if self.need_plan_reason is None:
@@ -297,8 +297,7 @@ class ControlCore:
                                               now + wait, attempts, result.proven)
                 if previous is None or previous.reason != result.reason:
                     news.append(name)
-                state_path = self.model.operation_by_name[name].state_path
-                self.state = self.compiled.with_values(self.state, {state_path: "error"})
+                self._set_op_state(name, OperationState.ERROR)
             if news:  # said once per goal and reason, not at every retry
                 kind = "unreachable" if result.proven else "not found in time"
                 self.events.log.append(f"no plan ({kind}) for {', '.join(news)}: {result.reason}")
@@ -309,9 +308,8 @@ class ControlCore:
         for name in request.goals:
             error = self.errors.pop(name, None)
             if error is not None:
-                state_path = self.model.operation_by_name[name].state_path
-                if self.state[self.compiled.index[state_path]] == "error":
-                    self.state = self.compiled.with_values(self.state, {state_path: "executing"})
+                if self.op_state(name) is OperationState.ERROR:
+                    self._set_op_state(name, OperationState.EXECUTING)
                 self.events.log.append(f"plan found for {name} after {error.attempts} attempt(s) without one")
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
@@ -349,9 +347,13 @@ class ControlCore:
         if name in self.requested:
             self.requested.remove(name)
         self.errors.pop(name, None)
-        self.state = self.compiled.with_values(self.state, {self.model.operation_by_name[name].state_path: "initial"})
+        self._set_op_state(name, OperationState.INITIAL)
         if replan is not None:
             self._want_plan(replan)
+
+    def _set_op_state(self, name: str, state: OperationState) -> None:
+        # The plain string, as every value of the state tuple (the model's domain)
+        self.state = self.compiled.with_values(self.state, {self.model.operation_by_name[name].state_path: state.value})
 
     def pause(self) -> None:
         self.paused = True

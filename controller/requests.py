@@ -44,7 +44,7 @@ from collections.abc import Callable
 from common.bus import Bus, Request
 from common.ctl import ACTIONS, ConsoleReply, ConsoleRequest
 from common.messages import MessageError, decode, encode
-from common.model import Kind, Predicate, Value
+from common.model import Kind, OperationState, Predicate, Value
 from common.model.predicates import And, format_value
 
 from .control import ControlCore
@@ -98,7 +98,7 @@ class Requests:
             "unforce": self._unforce,
         }
         # Called with the operation's name and state, once it is known to exist.
-        self._operation_handlers: dict[str, Callable[[str, str], ConsoleReply]] = {
+        self._operation_handlers: dict[str, Callable[[str, OperationState], ConsoleReply]] = {
             "start": self._start, "stop": self._stop, "reset": self._reset,
         }
 
@@ -144,12 +144,12 @@ class Requests:
             self.wake()
         return reply
 
-    def _start(self, name: str, state: str) -> ConsoleReply:
-        if state == "finished":
+    def _start(self, name: str, state: OperationState) -> ConsoleReply:
+        if state is OperationState.FINISHED:
             return refused(f"{name} is finished: reset it to run it again")
-        if state == "executing":
+        if state is OperationState.EXECUTING:
             return refused(f"{name} is already executing")
-        if state == "error":
+        if state is OperationState.ERROR:
             return refused(f"{name} is in error ({self.core.error_text(name)}): stop or reset it first")
         operation = self.model.operation_by_name[name]
         waiting = unmet(operation.pre, self.compiled.unpack(self.core.state))
@@ -162,22 +162,22 @@ class Requests:
             notes.append("paused: it starts on resume")
         return accepted("; ".join(notes))
 
-    def _stop(self, name: str, state: str) -> ConsoleReply:
-        if state == "finished":
+    def _stop(self, name: str, state: OperationState) -> ConsoleReply:
+        if state is OperationState.FINISHED:
             return refused(f"{name} is finished: reset returns it to initial")
-        if state == "initial" and name not in self.core.requested:
+        if state is OperationState.INITIAL and name not in self.core.requested:
             return refused(f"{name} is not started")
-        running = state != "initial"
+        running = state is not OperationState.INITIAL
         self.core.withdraw(name, f"operation {name} stopped by the operator" if running else None)
         self.persist(list(self.core.requested))
         return accepted("" if running else "it no longer waits to start")
 
-    def _reset(self, name: str, state: str) -> ConsoleReply:
-        if state == "executing":
+    def _reset(self, name: str, state: OperationState) -> ConsoleReply:
+        if state is OperationState.EXECUTING:
             return refused(f"{name} is executing: stop it first")
-        if state == "initial":
+        if state is OperationState.INITIAL:
             return refused(f"{name} is already initial")
-        self.core.withdraw(name, f"operation {name} reset by the operator" if state == "error" else None)
+        self.core.withdraw(name, f"operation {name} reset by the operator" if state is OperationState.ERROR else None)
         self.persist(list(self.core.requested))
         return accepted()
 

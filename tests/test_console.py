@@ -27,6 +27,7 @@ from textual.pilot import Pilot
 from textual.widgets import Static
 
 from common.ctl import ConsoleReply
+from common.model import OperationState
 from controller.console.app import ConsoleApp
 from controller.console.link import ConsoleLink
 from controller.console.station import StationInfo
@@ -105,16 +106,17 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
     async with app.run_test(size=SCREEN) as pilot:
         await until(pilot, station, lambda: len(app.table("operations").shown) == 3, "the console shows the operations")
         await until(pilot, station, lambda: len(app.table("resources").shown) == 3, "the console shows the resources")
-        assert op_state(station, "PlaceBolts") == "initial"  # --hold: nothing started by itself
+        assert op_state(station, "PlaceBolts") == OperationState.INITIAL  # --hold: nothing started by itself
 
         # Pause, then start: accepted, but it waits for resume.
         assert (await press(pilot, app, station, "p")).accepted
         await until(pilot, station, lambda: station.watch.status().paused, "the controller reports paused")
         started = await on_operation(pilot, app, station, "PlaceBolts", "s")
         assert started.accepted and "starts on resume" in started.reason
-        assert op_state(station, "PlaceBolts") == "initial"
+        assert op_state(station, "PlaceBolts") == OperationState.INITIAL
         assert (await press(pilot, app, station, "p")).accepted  # resume
-        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == "executing", "PlaceBolts executes")
+        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.EXECUTING,
+                    "PlaceBolts executes")
         await until(pilot, station, lambda: app.state_view.values.get("human.instr_c") == "place_bolts",
                     "the console shows the operator's instruction")
         assert not station.watch.status().paused
@@ -127,16 +129,19 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         # Stop: back to initial and its plan dropped. The instruction already given stays (an ability
         # under way runs to its end: the operator's ends with a confirmation); start again.
         assert (await on_operation(pilot, app, station, "PlaceBolts", "x")).accepted
-        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == "initial", "PlaceBolts stops")
+        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.INITIAL,
+                    "PlaceBolts stops")
         await until(pilot, station, lambda: not station.watch.status().plan_goals, "the plan is dropped")
         assert (await on_operation(pilot, app, station, "PlaceBolts", "s")).accepted
-        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == "executing", "PlaceBolts runs again")
+        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.EXECUTING,
+                    "PlaceBolts runs again")
 
         # The operator confirms on the console: the bolts are placed, the operation finishes.
         confirmed = await press(pilot, app, station, "c")
         assert confirmed.accepted and confirmed.reason == "human confirmed place_bolts"
-        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == "finished", "PlaceBolts finishes")
-        await until(pilot, station, lambda: shown_op_state(app, "PlaceBolts") == "finished",
+        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.FINISHED,
+                    "PlaceBolts finishes")
+        await until(pilot, station, lambda: shown_op_state(app, "PlaceBolts") == OperationState.FINISHED,
                     "the console shows PlaceBolts finished")
         await until(pilot, station, lambda: station.watch.snapshot().get("engine.bolt1_e") == "placed",
                     "the controller records the bolts placed")
@@ -145,7 +150,8 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
 
         # Reset: the finished operation back to initial (its precondition no longer holds: it stays there).
         assert (await on_operation(pilot, app, station, "PlaceBolts", "r")).accepted
-        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == "initial", "PlaceBolts resets")
+        await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.INITIAL,
+                    "PlaceBolts resets")
 
         # Force an estimate through the input, see it forced in the controller's state, then undo it.
         forced_at = time.monotonic()
@@ -219,7 +225,8 @@ async def test_reference_station_runs_to_completion_from_the_console(tmp_path: P
                     if reply.accepted:
                         confirmed.append(str(task))
                 await pilot.pause(0.2)
-            await until(pilot, station, lambda: all(shown_op_state(app, name) == "finished" for name in operations),
+            await until(pilot, station,
+                        lambda: all(shown_op_state(app, name) == OperationState.FINISHED for name in operations),
                         "the console shows every operation finished")
         assert station.watch.finished()
         # The emulated operator never confirms: whatever an operator's confirmation records (the frame

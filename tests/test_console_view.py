@@ -7,7 +7,7 @@ from textual.app import App, ComposeResult
 
 from common.config import load_station
 from common.ctl import OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
-from common.model import Kind
+from common.model import Kind, OperationState
 from controller.console.station import StationInfo
 from controller.console.table import RowTable
 from controller.console.view import (
@@ -48,10 +48,11 @@ def test_event_feed_notes_the_watchdogs_verdicts() -> None:
 
 def test_operation_clock_times_the_changes_the_controller_does_not() -> None:
     clock = OperationClock()
-    assert clock.since(OperationInfo("Op", "executing", since=5.0), uptime=9.0) == 5.0
-    assert clock.since(OperationInfo("Op", "finished", since=12.0), uptime=12.5) == 12.0  # timed by the controller
-    assert clock.since(OperationInfo("Op", "initial", since=12.0), uptime=20.0) == 20.0  # a reset: seen at 20 s
-    assert clock.since(OperationInfo("Op", "initial", since=12.0), uptime=30.0) == 20.0
+    executing, finished, initial = OperationState.EXECUTING, OperationState.FINISHED, OperationState.INITIAL
+    assert clock.since(OperationInfo("Op", executing, since=5.0), uptime=9.0) == 5.0
+    assert clock.since(OperationInfo("Op", finished, since=12.0), uptime=12.5) == 12.0  # timed by the controller
+    assert clock.since(OperationInfo("Op", initial, since=12.0), uptime=20.0) == 20.0  # a reset: seen at 20 s
+    assert clock.since(OperationInfo("Op", initial, since=12.0), uptime=30.0) == 20.0
 
 
 def test_state_view_filters_by_path_kind_and_recent_change() -> None:

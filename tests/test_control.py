@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from common.model import Domain, Model, Phase, Resource, ability, command, measured, operation
+from common.model import Domain, Model, OperationState, Phase, Resource, ability, command, measured, operation
 from common.model.compiled import CompiledModel
 from controller.control import ControlCore, PlanRequest
 from controller.planner import NoPlan, Plan, Planner
@@ -61,7 +61,7 @@ def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() 
         result = core.solve(request)
         assert isinstance(result, NoPlan) and result.proven
         core.adopt(request, result)
-        assert core.op_state("LampOn") == "error"
+        assert core.op_state("LampOn") == OperationState.ERROR
         error = core.errors["LampOn"]
         waits.append(error.retry_at - now[0])
         empty = core.plan_request()  # planned again without the goal, until its retry is due
@@ -80,7 +80,7 @@ def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() 
     request = core.plan_request()
     assert request is not None
     core.adopt(request, core.solve(request))
-    assert core.op_state("LampOn") == "executing" and "LampOn" not in core.errors
+    assert core.op_state("LampOn") == OperationState.EXECUTING and "LampOn" not in core.errors
     assert any(line.startswith("plan found for LampOn after 4 attempt") for line in core.events.log)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from common.model import (
     Domain,
     Model,
+    OperationState,
     Phase,
     Resource,
     ability,
@@ -99,10 +100,10 @@ def test_operations_start_on_request_and_finish_on_their_goal() -> None:
     tick = engine.tick(c.initial())
     assert tick.started == []  # not requested
     tick = engine.tick(c.initial(), requested=["BothOn"])
-    assert tick.started == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == "executing"
+    assert tick.started == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == OperationState.EXECUTING
     lit = c.with_values(tick.state, {"a.on_m": True, "b.on_m": True, "a.on_c": True, "b.on_c": True})
     tick = engine.tick(lit, requested=["BothOn"])
-    assert tick.finished == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == "finished"
+    assert tick.finished == ["BothOn"] and c.unpack(tick.state)["op.BothOn"] == OperationState.FINISHED
 
 
 def test_a_disabled_resource_gets_no_commands() -> None:

@@ -25,6 +25,7 @@ from pathlib import Path
 import pytest
 
 from common.messages import HubStatus
+from common.model import OperationState
 from tests.fault_station.checks import (
     POSE_OF,
     RUN_TIMEOUT_S,
@@ -91,18 +92,18 @@ def test_controller_killed_mid_run_resumes_from_its_database_and_redoes_nothing(
         status = station.watch.status()
         return last is not None and not last.run_m and not last.tqr_m \
             and 1 <= len(rising_edges(states, "tqr_m")) < len(BOLTS) \
-            and status is not None and "finished" in op_states(status).values()
+            and status is not None and OperationState.FINISHED in op_states(status).values()
 
     station.wait_for(between_bolts, RUN_TIMEOUT_S, "a bolt done and the nutrunner idle", poll=0.002)
     killed_at = station.kill("controller")
     before = station.watch.status()
     assert before is not None and before.controller == first_controller and not before.finished
-    finished_before = {name for name, state in op_states(before).items() if state == "finished"}
+    finished_before = {name for name, state in op_states(before).items() if state == OperationState.FINISHED}
     assert finished_before, f"no operation finished before the kill: {op_states(before)}"
     # Nothing reported finished is lost: the database holds it (written before it is published).
     persisted = station.persisted()
     for name in finished_before:
-        assert persisted[f"op.{name}"] == "finished"
+        assert persisted[f"op.{name}"] == OperationState.FINISHED
     # What the killed controller had recorded (its database, not the 1 Hz snapshot, which may lag).
     tightened_before = {i for i in BOLTS if persisted.get(bolt(i)) == "tightened"}
     assert all(persisted[bolt(i)] == "tightened" for i in BOLTS
@@ -118,7 +119,7 @@ def test_controller_killed_mid_run_resumes_from_its_database_and_redoes_nothing(
     # Restored, not redone: from its first status on, what was finished stays finished.
     for status in second:
         states = op_states(status)
-        assert all(states[name] == "finished" for name in finished_before), states
+        assert all(states[name] == OperationState.FINISHED for name in finished_before), states
     # The command state came from the hubs' mirrors: the new controller's first command to each hub (seq 0,
     # as the hub mirrored it) is what the hub had applied last from the old one (the robot is not sent back).
     for resource, codec in station.watch.codecs.items():
@@ -171,12 +172,13 @@ def test_frozen_hub_is_unhealthy_within_2_s_nothing_depending_on_it_is_commanded
     assert {s.message.pos_m for s in between(station.watch.states("ur"), frozen_at, thawed_at)} == {at_bolt}
     for s in between(station.watch.snapshots(), frozen_at, thawed_at):
         assert s.message.values[bolt(POSE_OF[at_bolt])] == "placed"
-    finished_before = {name for name, state in op_states(before).items() if state == "finished"}
+    finished_before = {name for name, state in op_states(before).items() if state == OperationState.FINISHED}
     for s in between(station.watch.statuses(), frozen_at, thawed_at):
         # The unfinished ones keep executing, or wait in `error` (no plan without the nutrunner), to be retried.
         for op in s.message.operations:
-            assert (op.state == "finished") == (op.name in finished_before), f"{op.name} is {op.state} while frozen"
-            assert op.state != "error" or "nr" in op.error, op.error
+            finished = op.state == OperationState.FINISHED
+            assert finished == (op.name in finished_before), f"{op.name} is {op.state} while frozen"
+            assert op.state != OperationState.ERROR or "nr" in op.error, op.error
     for s in between(station.watch.statuses(), detected.at, thawed_at):
         assert not next(h for h in s.message.health if h.resource == "nr").healthy, "nr reported healthy while frozen"
 

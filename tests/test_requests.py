@@ -14,7 +14,7 @@ import pytest
 from common.bus import Request
 from common.ctl import ConsoleReply, ConsoleRequest
 from common.messages import decode, encode
-from common.model import Domain, Model, Value, estimated, operation, tracking
+from common.model import Domain, Model, OperationState, Value, estimated, operation, tracking
 from common.resources import nutrunner, operator, ur
 from controller.requests import Requests, coerce
 from controller.stack import build_controller_stack
@@ -91,7 +91,7 @@ def test_start_requests_and_says_what_the_operation_waits_for(rig: Rig) -> None:
     assert reply.accepted and "engine.bolt1_e == placed" in reply.reason
     assert rig.persisted[-1] == ["TightenBolt1"] and rig.wakes == 1
     rig.settle()
-    assert rig.op("TightenBolt1") == "initial"  # its precondition does not hold yet
+    assert rig.op("TightenBolt1") == OperationState.INITIAL  # its precondition does not hold yet
     again = rig.ask("start", operation="TightenBolt1")
     assert not again.accepted and "already started" in again.reason
     assert rig.core.events.log[-1].startswith("console (test): start TightenBolt1 refused: ")
@@ -110,15 +110,15 @@ def test_unknown_action_is_refused_with_the_known_ones(rig: Rig) -> None:
 def test_stop_returns_an_executing_operation_to_initial_and_drops_its_plan(rig: Rig) -> None:
     assert rig.ask("start", operation="SeatFrame").accepted
     rig.settle()
-    assert rig.op("SeatFrame") == "executing"
+    assert rig.op("SeatFrame") == OperationState.EXECUTING
     assert rig.core.progress is not None and rig.value("human.instr_c") == "seat_frame"
     reply = rig.ask("stop", operation="SeatFrame")
     assert reply.accepted
-    assert rig.op("SeatFrame") == "initial" and "SeatFrame" not in rig.core.requested
+    assert rig.op("SeatFrame") == OperationState.INITIAL and "SeatFrame" not in rig.core.requested
     assert rig.core.progress is None  # the plan made for its goal is gone
     assert rig.persisted[-1] == []
     rig.settle()
-    assert rig.op("SeatFrame") == "initial"  # not started again
+    assert rig.op("SeatFrame") == OperationState.INITIAL  # not started again
     assert not rig.ask("stop", operation="SeatFrame").accepted
 
 
@@ -134,12 +134,12 @@ def test_reset_only_from_finished_and_a_finished_operation_cannot_start(rig: Rig
     rig.settle()
     assert not rig.ask("reset", operation="SeatFrame").accepted  # executing: stop it first
     rig.measure(human__done_m=True)  # the operator confirms on the watch
-    assert rig.op("SeatFrame") == "finished"
+    assert rig.op("SeatFrame") == OperationState.FINISHED
     refused = rig.ask("start", operation="SeatFrame")
     assert not refused.accepted and "reset it" in refused.reason
     assert rig.ask("reset", operation="SeatFrame").accepted
     rig.settle()
-    assert rig.op("SeatFrame") == "initial"  # and stays: no longer requested
+    assert rig.op("SeatFrame") == OperationState.INITIAL  # and stays: no longer requested
     assert rig.value(FRAME) == "placed"  # what it recorded stays recorded
     assert rig.ask("reset", operation="SeatFrame").reason == "SeatFrame is already initial"
 
@@ -150,15 +150,15 @@ def test_pause_holds_deliberate_transitions_but_not_automatic_ones(rig: Rig) -> 
     reply = rig.ask("start", operation="SeatFrame")
     assert reply.accepted and "starts on resume" in reply.reason
     rig.settle()
-    assert rig.op("SeatFrame") == "initial"  # an operation start is deliberate: held
+    assert rig.op("SeatFrame") == OperationState.INITIAL  # an operation start is deliberate: held
     assert rig.ask("resume").accepted
     rig.settle()
-    assert rig.op("SeatFrame") == "executing" and rig.value("human.instr_c") == "seat_frame"
+    assert rig.op("SeatFrame") == OperationState.EXECUTING and rig.value("human.instr_c") == "seat_frame"
     rig.ask("pause")
     rig.measure(human__done_m=True)
     # Automatic: the instruction is withdrawn, the frame recorded and the operation finishes while paused.
     assert rig.value("human.instr_c") == "none" and rig.value(FRAME) == "placed"
-    assert rig.op("SeatFrame") == "finished"
+    assert rig.op("SeatFrame") == OperationState.FINISHED
     rig.ask("start", operation="PlaceBolts")
     rig.measure(human__done_m=False)
     assert rig.value("human.instr_c") == "none"  # no new instruction while paused
@@ -176,7 +176,7 @@ def test_confirm_holds_the_button_until_the_instruction_is_withdrawn(rig: Rig) -
     assert rig.core.forced_paths() == ["human.done_m"]
     rig.measure(human__done_m=False)  # the hub still reads the button released: the console's press wins
     assert rig.value("human.instr_c") == "none" and rig.value(FRAME) == "placed"
-    assert rig.op("SeatFrame") == "finished"
+    assert rig.op("SeatFrame") == OperationState.FINISHED
     assert rig.core.forced_paths() == [] and rig.value("human.done_m") is False  # released: the hub's value
 
 
@@ -211,7 +211,7 @@ def test_force_a_command_blocks_the_transitions_that_write_it(rig: Rig) -> None:
     assert rig.ask("force", path="human.instr_c", value="none").accepted
     rig.settle()
     # SeatFrame's plan instructs seat_frame: that step waits while the instruction is held at none.
-    assert rig.op("SeatFrame") == "executing" and rig.core.progress is not None
+    assert rig.op("SeatFrame") == OperationState.EXECUTING and rig.core.progress is not None
     assert rig.value("human.instr_c") == "none" and rig.core.events.replans == 0
     assert rig.ask("unforce", path="human.instr_c").reason == "human.instr_c is none again"
     rig.settle()

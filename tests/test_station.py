@@ -21,6 +21,7 @@ from common.model import (
     Kind,
     Model,
     ModelError,
+    OperationState,
     Predicate,
     Ref,
     Transition,
@@ -261,7 +262,7 @@ def test_each_operation_reaches_its_goal_in_order(station: Model) -> None:
         found = explorer.reach(state, op.goal)
         assert found is not None, f"{name}: goal {op.goal} is unreachable"
         state = explorer.settle(fire(op.finish_transition(), found.state))
-    assert all(state[f"op.{name}"] == "finished" for name in engine_assembly.OPERATION_ORDER)
+    assert all(state[f"op.{name}"] == OperationState.FINISHED for name in engine_assembly.OPERATION_ORDER)
 
 
 def test_neighbouring_bolts_are_tightened_along_the_ring(station: Model) -> None:
@@ -297,8 +298,8 @@ NUTRUNNER_ON_ROBOT = {"rsp.lock_c": True, "rsp.locked_m": True, "rsp.tool_m": "n
     (ALLOWED | {"human.instr_c": "tighten_pipe1", "ur.ref_pos_c": "above_engine", "ur.pos_m": "above_engine"},
      None),  # standing still
     ({"human.instr_c": "place_bolts"}, "operator_instructed_before_verified"),
-    ({"op.PlaceBolts": "executing"}, "operator_operation_before_verified"),
-    ({"op.AttachLiftTool": "executing"}, None),  # robot-only operations run unverified
+    ({"op.PlaceBolts": OperationState.EXECUTING}, "operator_operation_before_verified"),
+    ({"op.AttachLiftTool": OperationState.EXECUTING}, None),  # robot-only operations run unverified
     (NUTRUNNER_ON_ROBOT | {"rsp.lock_c": False, "ur.pos_m": "home"}, "tool_released_outside_its_slot"),
     (NUTRUNNER_ON_ROBOT | {"rsp.lock_c": False, "ur.pos_m": "dock_nutrunner", "ur.ref_pos_c": "dock_nutrunner"},
      None),

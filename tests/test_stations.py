@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from common.config import ConfigError, load_config, load_station, parse_config
-from common.model import Model, Value, estimated, operation, tracking
+from common.model import Model, OperationState, Value, estimated, operation, tracking
 from common.model.compiled import CompiledModel
 from common.resources import nutrunner, ur
 from common.stations import machine_tending, shared_workspace
@@ -204,7 +204,7 @@ def test_an_operation_whose_precondition_a_record_makes_true_starts_in_the_same_
     tick = engine.tick(arrived, requested=["Check", "TightenBolt"])
     # stage 2 records the visit, which finishes Check and lets TightenBolt start, all in this tick
     assert tick.finished == ["Check"] and tick.started == ["TightenBolt"]
-    assert compiled.unpack(tick.state)["op.TightenBolt"] == "executing"
+    assert compiled.unpack(tick.state)["op.TightenBolt"] == OperationState.EXECUTING
     assert engine.tick(tick.state, requested=["Check", "TightenBolt"]).state == tick.state  # a fixpoint
 
 

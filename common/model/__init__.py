@@ -3,7 +3,16 @@
 from .abilities import STANDARD_PHASES, Ability, Phase, ability, tracking
 from .actions import Assign, apply_all
 from .model import Model, ModelError, Problem
-from .operations import OPERATION_STATES, Operation, Specification, forbid, operation
+from .operations import (
+    OPERATION_STATES,
+    RUNNING,
+    Operation,
+    OperationState,
+    Specification,
+    forbid,
+    operation,
+    operation_running,
+)
 from .parser import ParseError, parse_action, parse_predicate
 from .predicates import FALSE, TRUE, And, Const, Eq, In, IsTrue, Ne, Not, Or, Predicate, Ref, all_of, any_of
 from .resource import Resource
@@ -14,6 +23,7 @@ __all__ = [
     "BOOL",
     "FALSE",
     "OPERATION_STATES",
+    "RUNNING",
     "STANDARD_PHASES",
     "TRUE",
     "Ability",
@@ -31,6 +41,7 @@ __all__ = [
     "Ne",
     "Not",
     "Operation",
+    "OperationState",
     "Or",
     "ParseError",
     "Phase",
@@ -55,6 +66,7 @@ __all__ = [
     "forbid",
     "measured",
     "operation",
+    "operation_running",
     "parse_action",
     "parse_predicate",
     "tracking",

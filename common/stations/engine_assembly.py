@@ -47,6 +47,7 @@ from common.model import (
     estimated,
     forbid,
     operation,
+    operation_running,
     tracking,
 )
 from common.resources import agv, camera, dock, lift, mir, nutrunner, operator, rfid, rsp, ur
@@ -277,7 +278,7 @@ def _specifications() -> tuple[Specification, ...]:
     shared_targets = tuple(p for p in POSES if p in SHARED_POSES or set(graph[p]) & set(SHARED_POSES))
     moving_in_shared_zone = any_of(*(all_of(f"ur.ref_pos_c == {p}", f"ur.pos_m != {p}") for p in shared_targets))
     unverified = all_of("!rfid.verified_m")
-    operator_operation_active = any_of(*(In(f"op.{name}", ("executing", "error")) for name in OPERATOR_OPERATIONS))
+    operator_operation_active = any_of(*(operation_running(name) for name in OPERATOR_OPERATIONS))
     return (
         forbid("robot_moves_in_shared_zone_while_operator_sent_to_robot_zone",
                In("human.instr_c", ROBOT_ZONE_TASKS) & moving_in_shared_zone,

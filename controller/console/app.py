@@ -33,6 +33,7 @@ from textual.widgets import Footer, Header, Input, RichLog, Static
 from textual.worker import Worker, WorkerState
 
 from common.ctl import ConsoleReply, ConsoleRequest, StatusMessage
+from common.model import OperationState
 
 from .link import ConsoleLink, Feed
 from .station import StationInfo
@@ -181,7 +182,7 @@ class ConsoleApp(App[None]):
             line.append(f"waiting for the controller of {self.info.station}", "yellow")
         else:
             silent = now - (self._status_seen_at or now)
-            done = sum(1 for op in status.operations if op.state == "finished")
+            done = sum(1 for op in status.operations if op.state is OperationState.FINISHED)
             line.append(f"controller {status.controller}, up {duration(status.uptime)}")
             if silent > SILENT_AFTER_S:
                 line.append(f"  SILENT for {duration(silent)}", "bold red")
@@ -254,7 +255,8 @@ class ConsoleApp(App[None]):
 
     def action_start_all(self) -> None:
         status = self.feed.status
-        names = [op.name for op in status.operations if op.state == "initial"] if status is not None else []
+        operations = status.operations if status is not None else []
+        names = [op.name for op in operations if op.state is OperationState.INITIAL]
         if not names:
             self.say("no operation in initial state to start")
             return

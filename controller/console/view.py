@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from rich.text import Text
 
 from common.ctl import OperationInfo, StateSnapshot, StatusMessage
-from common.model import Kind, ParseError, Value, parse_action
+from common.model import Kind, OperationState, ParseError, Value, parse_action
 from common.model.predicates import Ref, format_value
 from common.selftest import SelftestMessage
 
@@ -34,7 +34,8 @@ OPERATION_COLUMNS = ("operation", "state", "goal", "in state", "error")
 PLAN_COLUMNS = ("#", "", "step", "kind", "waits for")
 STATE_COLUMNS = ("variable", "kind", "value", "forced", "changed")
 
-OP_STYLES = {"initial": "", "executing": "bold cyan", "finished": "green", "error": "bold red"}
+OP_STYLES = {OperationState.INITIAL: "", OperationState.EXECUTING: "bold cyan", OperationState.FINISHED: "green",
+             OperationState.ERROR: "bold red"}
 KIND_ORDER: tuple[Kind | None, ...] = (None, Kind.MEASURED, Kind.ESTIMATED, Kind.COMMAND)
 
 

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from common.model import Model
+from common.model import Model, OperationState
 from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget
 from controller.stack import build_controller_stack
@@ -71,7 +71,7 @@ def run_in_process(
             if name in deliberate:
                 say(f"{now:7.1f}s    {name}")
         for name in result.finished:
-            done = sum(1 for op in model.operations if core.op_state(op.name) == "finished")
+            done = sum(1 for op in model.operations if core.op_state(op.name) is OperationState.FINISHED)
             say(f"{now:7.1f}s  done   {name}  [{done}/{total}]")
         if core.all_finished():
             break
@@ -115,7 +115,7 @@ def run_in_process(
     events = core.events
     return RunSummary(
         finished=core.all_finished(),
-        operations_finished=sum(1 for op in model.operations if core.op_state(op.name) == "finished"),
+        operations_finished=sum(1 for op in model.operations if core.op_state(op.name) is OperationState.FINISHED),
         operations_total=total,
         abilities=events.abilities_started,
         plans=events.plans,

@@ -21,10 +21,13 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import StationConfig, load_station
 from common.ctl import StatusMessage
 from common.messages import MessageError, decode
+from common.model import OperationState
 from common.process import free_port
 
 RUN_DIR = Path("var/up")
 STOP_GRACE_S = 5.0
+OPERATION_LABELS = {OperationState.EXECUTING: "start", OperationState.FINISHED: "done ", OperationState.ERROR: "ERROR",
+                    OperationState.INITIAL: "reset"}
 
 
 class AlreadyRunning(RuntimeError):
@@ -102,22 +105,22 @@ class Progress:
     def __init__(self, say: object, total: int) -> None:
         self.say = say
         self.total = total
-        self.op_states: dict[str, str] = {}
+        self.op_states: dict[str, OperationState] = {}
         self.activity = ""
         self.last_activity_at = 0.0
         self.reported: set[str] = set()
 
     def update(self, status: StatusMessage) -> None:
         say = self.say
-        done = sum(1 for op in status.operations if op.state == "finished")
+        done = sum(1 for op in status.operations if op.state is OperationState.FINISHED)
         for op in status.operations:
             old = self.op_states.get(op.name)
             if old == op.state:
                 continue
             self.op_states[op.name] = op.state
-            if old is None and op.state == "initial":
+            if old is None and op.state is OperationState.INITIAL:
                 continue
-            label = {"executing": "start", "finished": "done ", "error": "ERROR", "initial": "reset"}[op.state]
+            label = OPERATION_LABELS[op.state]
             extra = f"  ({op.error})" if op.error else ""
             say(f"[{done:2d}/{self.total}] {status.uptime:6.1f}s  {label}  {op.name}{extra}")  # type: ignore[operator]
         current: dict[str, str] = {}
@@ -226,7 +229,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
             await world.stop()
     elapsed = time.monotonic() - began
     if last is not None:
-        done = sum(1 for op in last.operations if op.state == "finished")
+        done = sum(1 for op in last.operations if op.state is OperationState.FINISHED)
         say("")
         say(f"{'finished' if result == 0 else 'NOT finished'}: {done}/{len(last.operations)} operations, "
             f"{last.abilities} abilities started, {last.plans} plans, {last.replans} replans, "

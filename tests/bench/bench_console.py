@@ -30,7 +30,7 @@ from common.ctl import (
     StateSnapshot,
     StatusMessage,
 )
-from common.model import Kind
+from common.model import Kind, OperationState
 from common.selftest import DeviceReport, SelftestMessage
 from controller.console.app import ConsoleApp
 from controller.console.station import StationInfo
@@ -39,6 +39,7 @@ OPERATIONS = 200
 PLAN_STEPS = 60
 ROUNDS = 60
 KINDS = (("run_c", Kind.COMMAND), ("run_m", Kind.MEASURED), ("tqr_m", Kind.MEASURED), ("count_e", Kind.ESTIMATED))
+MOVING = (OperationState.EXECUTING, OperationState.FINISHED)  # the states a round moves operations to
 
 
 class CannedFeed:
@@ -49,7 +50,7 @@ class CannedFeed:
         self.names = [f"r{i:03d}" for i in range(resources)]
         self.status: StatusMessage | None = StatusMessage(
             station="bench", controller="bench-0", time=time.time(), uptime=0.0,
-            operations=[OperationInfo(f"Op{i}", "initial") for i in range(OPERATIONS)],
+            operations=[OperationInfo(f"Op{i}", OperationState.INITIAL) for i in range(OPERATIONS)],
             health=[ResourceHealthInfo(r, f"hub{i // 8}", True, age=0.01) for i, r in enumerate(self.names)],
             plan=[PlanStepInfo(self.names[j % resources], f"{self.names[j % resources]}.tighten.enabled",
                                "deliberate", f"!{self.names[j % resources]}.run_c && ur.pos_m == at_bolt{j}", False)
@@ -80,7 +81,7 @@ class CannedFeed:
         health[late] = msgspec.structs.replace(health[late], age=1.0 + rnd.random())
         operations = list(status.operations)
         for i in rnd.sample(range(len(operations)), 3):
-            operations[i] = msgspec.structs.replace(operations[i], state=rnd.choice(("executing", "finished")),
+            operations[i] = msgspec.structs.replace(operations[i], state=rnd.choice(MOVING),
                                                     since=round_ * 0.3)
         plan = [msgspec.structs.replace(s, done=j < round_ % PLAN_STEPS) for j, s in enumerate(status.plan)]
         self.status = msgspec.structs.replace(status, health=health, operations=operations, plan=plan,

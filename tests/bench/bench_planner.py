@@ -35,7 +35,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.model import Model, Predicate, all_of, parse_predicate
+from common.model import Model, OperationState, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
 from common.stations import engine_assembly, load_model, synthetic
 from controller.control import VIRTUAL_BUDGET
@@ -189,12 +189,12 @@ def walk(model: Model, compiled: CompiledModel, planner: Planner, names: list[st
     state = compiled.initial()
     for name in names:
         op = model.operation_by_name[name]
-        state = compiled.with_values(state, {op.state_path: "executing"})
+        state = compiled.with_values(state, {op.state_path: OperationState.EXECUTING.value})
         result = planner.plan(state, {name: op.goal}, budget=Budget(improve_expansions=0, seconds=60))
         if not isinstance(result, Plan):
             raise SystemExit(f"walk: no plan for {name}: {result.reason}")
         state, _ = compiled.close(result.states[-1])
-        state = compiled.with_values(state, {op.state_path: "finished"})
+        state = compiled.with_values(state, {op.state_path: OperationState.FINISHED.value})
     return state
 
 
@@ -214,7 +214,7 @@ def reference_cases() -> list[Case]:
                                               "MountFilter2", "MountFilter3", "MountOilPipes"])
     park_set = ["ParkNutrunner", "AttachFilterTool", "TightenFilter1", "TightenFilter2", "TightenFilter3",
                 "TightenPipe1", "TightenPipe2"]
-    executing = {model.operation_by_name[n].state_path: "executing" for n in park_set}
+    executing = {model.operation_by_name[n].state_path: OperationState.EXECUTING.value for n in park_set}
     robot_home = model.initial_state()
     robot_home.update(load_state(str(HERE / "robothome_state.toml"), model))
     return [

@@ -11,6 +11,7 @@ from itertools import pairwise
 from typing import Any
 
 from common.ctl import StatusMessage
+from common.model import OperationState
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES, BOLTS, bolt
 from tests.fault_station.watcher import Seen, rising_edges, value_at
@@ -60,14 +61,14 @@ def assert_station_done_each_bolt_once(station: Station) -> None:
     # Each operation finishes once and stays finished, across controller restarts.
     for name in OPERATIONS:
         seen = [op_states(s.message)[name] for s in watch.statuses()]
-        first = seen.index("finished")
-        assert all(state == "finished" for state in seen[first:]), f"{name} left finished: {seen[first:]}"
+        first = seen.index(OperationState.FINISHED)
+        assert all(state == OperationState.FINISHED for state in seen[first:]), f"{name} left finished: {seen[first:]}"
     # What is persisted.
     persisted = station.persisted()
     for i in BOLTS:
         assert persisted[bolt(i)] == "tightened"
     for name in OPERATIONS:
-        assert persisted[f"op.{name}"] == "finished"
+        assert persisted[f"op.{name}"] == OperationState.FINISHED
     assert not station.dead(), f"processes exited: {station.dead()}"
     loop = watch.status().loop  # the controller measures its own loop (tests/bench/bench_station.py reads it)
     assert loop is not None and loop.ticks > 0 and loop.states > 0 and loop.tick_ms_median > 0

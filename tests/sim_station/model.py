@@ -26,6 +26,7 @@ from common.model import (
     any_of,
     forbid,
     operation,
+    operation_running,
     tracking,
 )
 from common.model import estimated as estimated_var
@@ -163,7 +164,7 @@ def _specifications() -> tuple[Specification, ...]:
                all_of("cam.zone_m == robot") & moving_in_shared_zone),
         forbid("operator_instructed_before_verified", unverified & all_of("human.instr_c != none")),
         forbid("operator_operation_before_verified",
-               unverified & any_of(*(In(f"op.{name}", ("executing", "error")) for name in OPERATOR_OPERATIONS))),
+               unverified & any_of(*(operation_running(name) for name in OPERATOR_OPERATIONS))),
         forbid("tool_released_outside_its_slot",
                any_of(*(all_of("!rsp.lock_c", f"rsp.tool_m == {tool}", f"ur.pos_m != {DOCK_POSES[tool]}")
                         for tool in TOOLS))),
