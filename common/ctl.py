@@ -1,6 +1,14 @@
-"""What the controller publishes under `{station}/ctl/` and the console's requests: plain msgspec structs."""
+"""What the controller publishes under `{station}/ctl/` and the console's requests: plain msgspec structs.
+
+The controller's event log is typed: each `Event` subclass is one kind of event (its `kind` on the
+wire), with the fields a program acts on and a `text` for people. Why the controller plans again is a
+`ReplanCause`: a `ReplanReason` its decisions depend on, and a detail for people.
+"""
 
 from __future__ import annotations
+
+import enum
+from typing import ClassVar
 
 import msgspec
 
@@ -49,6 +57,203 @@ class LoopStats(msgspec.Struct, frozen=True):
     state_age_ms_max: float
 
 
+# --- why the controller plans (again) ----------------------------------------------------------
+
+class ReplanReason(enum.StrEnum):
+    """Why a plan is due; the value is how the event log says it."""
+
+    START = "start"
+    LEFT_PLAN = "the state left the plan"  # detail: the variables off the plan's trace
+    STEP_BLOCKED = "the next step can no longer fire"  # detail: the step
+    HEALTH_CHANGED = "resource health changed"  # detail: the resources disabled now
+    RESTORED = "restored state"
+    GOALS_CHANGED = "goals changed"
+    GOALS_NOT_REACHED = "plan complete but goals not reached"
+    GOALS_WITHOUT_PLAN = "planning without the goals that have no plan"
+    RESUMED = "resumed"
+    STOPPED_BY_OPERATOR = "stopped by the operator"  # detail: the operation
+    RESET_BY_OPERATOR = "reset by the operator"  # detail: the operation
+
+
+_CAUSE_TEXT = {  # how a reason and its detail read where it is not "reason: detail"
+    ReplanReason.HEALTH_CHANGED: "{reason} (disabled: {detail})",
+    ReplanReason.STOPPED_BY_OPERATOR: "operation {detail} {reason}",
+    ReplanReason.RESET_BY_OPERATOR: "operation {detail} {reason}",
+}
+
+
+class ReplanCause(msgspec.Struct, frozen=True):
+    reason: ReplanReason
+    detail: str = ""
+
+    @property
+    def text(self) -> str:
+        if not self.detail:
+            return self.reason.value
+        return _CAUSE_TEXT.get(self.reason, "{reason}: {detail}").format(reason=self.reason, detail=self.detail)
+
+
+# --- the event log ------------------------------------------------------------------------------
+
+class Event(msgspec.Struct, frozen=True, tag_field="kind"):
+    """One entry of the controller's event log (`StatusMessage.events`), or of the console's own notes."""
+
+    fault: ClassVar[bool] = False  # something went wrong that an operator should see
+
+    @property
+    def text(self) -> str:
+        raise NotImplementedError
+
+
+class Replanned(Event, tag="replan"):
+    cause: ReplanCause
+
+    @property
+    def text(self) -> str:
+        return f"replan: {self.cause.text}"
+
+
+class PlanKept(Event, tag="plan_kept"):
+    """The state left the plan, but the rest of the plan still reaches the goals from there."""
+
+    steps: int
+    cause: ReplanCause
+
+    @property
+    def text(self) -> str:
+        return f"plan kept: {self.steps} steps still reach the goals ({self.cause.text})"
+
+
+class ShorterPlan(Event, tag="shorter_plan"):
+    steps: int
+    instead_of: int
+    method: str
+
+    @property
+    def text(self) -> str:
+        return f"shorter plan taken: {self.steps} steps left instead of {self.instead_of} ({self.method})"
+
+
+class PlannedAlone(Event, tag="planned_alone"):
+    """The goals together had no plan within the budget: one of them is planned alone, for progress."""
+
+    operation: str
+    goals: int
+    reason: str
+
+    @property
+    def text(self) -> str:
+        return (f"planned {self.operation} alone: {self.goals} goals together were not solved "
+                f"within the budget ({self.reason})")
+
+
+class NoPlanFound(Event, tag="no_plan"):
+    """Goals without a plan: shown unreachable (`proven`) or not found within the budget; said once per goal
+    and reason, not at every retry."""
+
+    operations: list[str]
+    proven: bool
+    reason: str
+    fault: ClassVar[bool] = True
+
+    @property
+    def text(self) -> str:
+        kind = "unreachable" if self.proven else "not found in time"
+        return f"no plan ({kind}) for {', '.join(self.operations)}: {self.reason}"
+
+
+class PlanFound(Event, tag="plan_found"):
+    """A goal that had no plan has one again."""
+
+    operation: str
+    attempts: int
+
+    @property
+    def text(self) -> str:
+        return f"plan found for {self.operation} after {self.attempts} attempt(s) without one"
+
+
+class HubAlive(Event, tag="hub_alive"):
+    hub: str
+
+    @property
+    def text(self) -> str:
+        return f"hub {self.hub} alive"
+
+
+class HubGone(Event, tag="hub_gone"):
+    hub: str
+    fault: ClassVar[bool] = True
+
+    @property
+    def text(self) -> str:
+        return f"hub {self.hub} gone"
+
+
+class MirrorsMissing(Event, tag="mirrors_missing"):
+    """At start, these hubs' resources (by hub) sent no mirror in time: their commands start from the model."""
+
+    resources: dict[str, list[str]]
+
+    @property
+    def report(self) -> str:
+        return "; ".join(f"hub {hub}: {', '.join(names)}" for hub, names in sorted(self.resources.items()))
+
+    @property
+    def text(self) -> str:
+        return f"start: no mirror from {self.report}"
+
+
+class RequestAnswered(Event, tag="request"):
+    """A console's request and the controller's answer."""
+
+    request: str  # ConsoleRequest.describe()
+    accepted: bool
+    detail: str = ""  # why it was refused, or what follows from accepting it
+    origin: str = ""  # who asked (user@host)
+
+    @property
+    def text(self) -> str:
+        origin = f" ({self.origin})" if self.origin else ""
+        detail = f": {self.detail}" if self.detail else ""
+        return f"console{origin}: {self.request} {'accepted' if self.accepted else 'refused'}{detail}"
+
+
+class Unhealthy(Event, tag="unhealthy"):
+    """The watchdog's verdict: the resource is unhealthy (the console notes it from the status's health)."""
+
+    resource: str
+    reason: str
+    fault: ClassVar[bool] = True
+
+    @property
+    def text(self) -> str:
+        return f"watchdog: {self.resource} unhealthy: {self.reason}"
+
+
+class Recovered(Event, tag="recovered"):
+    resource: str
+
+    @property
+    def text(self) -> str:
+        return f"watchdog: {self.resource} recovered"
+
+
+class ControllerChanged(Event, tag="controller_changed"):
+    """The console sees another controller publish (a restart)."""
+
+    controller: str
+    previous: str
+
+    @property
+    def text(self) -> str:
+        return f"controller {self.controller} (was {self.previous})"
+
+
+ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | HubAlive | HubGone
+                | MirrorsMissing | RequestAnswered | Unhealthy | Recovered | ControllerChanged)
+
+
 class StatusMessage(Message, kw_only=True):
     """`{station}/ctl/status`, at a few Hz and on every operation change."""
 
@@ -66,7 +271,7 @@ class StatusMessage(Message, kw_only=True):
     abilities: int
     paused: bool = False
     finished: bool = False
-    events: list[str] = msgspec.field(default_factory=list)  # newest last
+    events: list[ConsoleEvent] = msgspec.field(default_factory=list)  # newest last
     loop: LoopStats | None = None  # None from a controller that does not measure itself
 
 

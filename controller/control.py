@@ -12,6 +12,17 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 
+from common.ctl import (
+    Event,
+    NoPlanFound,
+    PlanFound,
+    PlanKept,
+    PlannedAlone,
+    ReplanCause,
+    Replanned,
+    ReplanReason,
+    ShorterPlan,
+)
 from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 
@@ -20,6 +31,7 @@ from .planner import Budget, NoPlan, Plan, Planner
 
 RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
 RETRY_MAX_S = 60.0
+AT_START = ReplanCause(ReplanReason.START)
 
 
 @dataclass(frozen=True)
@@ -30,7 +42,7 @@ class PlanRequest:
     start: State
     goals: dict[str, Predicate]
     disabled: frozenset[str]
-    reason: str = ""  # why a plan is due
+    reason: ReplanCause = AT_START  # why a plan is due
 
 
 @dataclass
@@ -61,21 +73,21 @@ class ControlEvents:
     plans: int = 0
     no_plans: int = 0
     abilities_started: int = 0
-    log: list[str] = field(default_factory=list)
+    log: list[Event] = field(default_factory=list)
 
 
-def anytime_answers(planner: Planner, request: PlanRequest, budget: Budget) -> Iterator[tuple[Plan | NoPlan | None,
-                                                                                             str]]:
+def anytime_answers(planner: Planner, request: PlanRequest,
+                    budget: Budget) -> Iterator[tuple[Plan | NoPlan | None, PlannedAlone | None]]:
     """The answers to one request: the portfolio's for all goals together; if it neither finds a plan nor
     shows one impossible, the first goal alone that has one (progress over minimality, as the original
     planner did for hard cases), with a note that says so."""
     if not request.goals:
-        yield None, ""
+        yield None, None
         return
     last: Plan | NoPlan | None = None
     for last in planner.plan_anytime(request.start, request.goals, request.disabled, budget):
         if isinstance(last, Plan):
-            yield last, ""
+            yield last, None
     if isinstance(last, Plan):
         return
     assert isinstance(last, NoPlan)
@@ -83,17 +95,17 @@ def anytime_answers(planner: Planner, request: PlanRequest, budget: Budget) -> I
         for name, goal in request.goals.items():
             single = planner.plan(request.start, {name: goal}, request.disabled, budget=budget)
             if isinstance(single, Plan):
-                yield single, (f"planned {name} alone: {len(request.goals)} goals together were not solved "
-                               f"within the budget ({last.reason})")
+                yield single, PlannedAlone(name, len(request.goals), last.reason)
                 return
-    yield last, ""
+    yield last, None
 
 
-def solve_goals(planner: Planner, request: PlanRequest, budget: Budget) -> tuple[Plan | NoPlan | None, str]:
+def solve_goals(planner: Planner, request: PlanRequest,
+                budget: Budget) -> tuple[Plan | NoPlan | None, PlannedAlone | None]:
     """The last (best) of `anytime_answers`: what a caller that can wait for the whole budget takes."""
-    best: tuple[Plan | NoPlan | None, str] = (None, "")
+    best: tuple[Plan | NoPlan | None, PlannedAlone | None] = (None, None)
     for answer, note in anytime_answers(planner, request, budget):
-        best = (answer, note or best[1])
+        best = (answer, note if note is not None else best[1])
     return best
 
 
@@ -131,7 +143,7 @@ class ControlCore:
         self.requested_goals: frozenset[str] = frozenset()  # of the plan under way
         self.generation = 0
         self.planning = False
-        self.need_plan_reason: str | None = "start"
+        self.need_plan_reason: ReplanCause | None = AT_START
         self.errors: dict[str, GoalError] = {}  # operation -> why it has no plan, and when it is retried
         self.events = ControlEvents()
         self.paused = False  # the operator holds every deliberate transition: plan steps and operation starts
@@ -161,12 +173,12 @@ class ControlCore:
     def set_disabled(self, resources: frozenset[str]) -> None:
         if resources != self.disabled:
             self.disabled = resources
-            self._want_plan(f"resource health changed (disabled: {', '.join(sorted(resources)) or 'none'})")
+            self._want_plan(ReplanCause(ReplanReason.HEALTH_CHANGED, ", ".join(sorted(resources)) or "none"))
 
     def load(self, values: Mapping[str, Value]) -> None:
         """Restore persisted or mirrored values of any kind (restart)."""
         self.state = self.compiled.with_values(self.state, values)
-        self._want_plan("restored state")
+        self._want_plan(ReplanCause(ReplanReason.RESTORED))
 
     # --- queries ------------------------------------------------------------------------
     def op_state(self, name: str) -> OperationState:
@@ -208,20 +220,20 @@ class ControlCore:
                 # The rest of a shortest plan that keeps what is done is still shortest for what is left.
                 self.planned_goals = goals
             else:
-                self._want_plan("goals changed")
+                self._want_plan(ReplanCause(ReplanReason.GOALS_CHANGED))
         if self.progress is not None and self.progress.complete and goals == self.planned_goals and goals:
             # Completed plan whose goals do not hold: the world moved on; plan again.
-            self._want_plan("plan complete but goals not reached")
+            self._want_plan(ReplanCause(ReplanReason.GOALS_NOT_REACHED))
         return result
 
-    def _revalidate(self, reason: str) -> bool:
+    def _revalidate(self, cause: ReplanCause) -> bool:
         """After the state left the plan: keep the rest of it if the engine would still take it to the goals.
 
         Devices change what no plan step waits for (the camera sees the operator step out after a
         task); replanning for each would stall the station for a search.
         """
         progress = self.progress
-        if progress is None or not reason.startswith("the state left the plan"):
+        if progress is None or cause.reason is not ReplanReason.LEFT_PLAN:
             return False
         rest = [progress.plan.steps[j] for j in sorted(progress.pending())]
         goals = {name: self.model.operation_by_name[name].goal for name in self.planned_goals}
@@ -231,7 +243,7 @@ class ControlCore:
         if plan is None:
             return False
         self.progress = PlanProgress(self.compiled, plan)
-        self.events.log.append(f"plan kept: {len(rest)} steps still reach the goals ({reason})")
+        self.events.log.append(PlanKept(len(rest), cause))
         return True
 
     def _only_finished_left(self, goals: frozenset[str]) -> bool:
@@ -239,9 +251,9 @@ class ControlCore:
         return (self.progress is not None and not self.planning and goals < self.planned_goals
                 and all(self.op_state(n) is OperationState.FINISHED for n in self.planned_goals - goals))
 
-    def _want_plan(self, reason: str) -> None:
+    def _want_plan(self, cause: ReplanCause) -> None:
         if self.need_plan_reason is None:
-            self.need_plan_reason = reason
+            self.need_plan_reason = cause
         self.progress = None
 
     def plan_request(self) -> PlanRequest | None:
@@ -252,9 +264,9 @@ class ControlCore:
         self.generation += 1
         self.planning = True
         self.requested_goals = frozenset(goals)
-        if self.need_plan_reason != "start" and goals:
+        if self.need_plan_reason.reason is not ReplanReason.START and goals:
             self.events.replans += 1
-            self.events.log.append(f"replan: {self.need_plan_reason}")
+            self.events.log.append(Replanned(self.need_plan_reason))
         reason, self.need_plan_reason = self.need_plan_reason, None
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason)
 
@@ -273,7 +285,7 @@ class ControlCore:
 
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
         result, note = solve_goals(self.planner, request, self.budget)
-        if note:
+        if note is not None:
             self.events.log.append(note)
         return result
 
@@ -299,9 +311,8 @@ class ControlCore:
                     news.append(name)
                 self._set_op_state(name, OperationState.ERROR)
             if news:  # said once per goal and reason, not at every retry
-                kind = "unreachable" if result.proven else "not found in time"
-                self.events.log.append(f"no plan ({kind}) for {', '.join(news)}: {result.reason}")
-            self._want_plan("planning without the goals that have no plan")
+                self.events.log.append(NoPlanFound(news, result.proven, result.reason))
+            self._want_plan(ReplanCause(ReplanReason.GOALS_WITHOUT_PLAN))
             self.progress = None
             return
         self.events.plans += 1
@@ -310,7 +321,7 @@ class ControlCore:
             if error is not None:
                 if self.op_state(name) is OperationState.ERROR:
                     self._set_op_state(name, OperationState.EXECUTING)
-                self.events.log.append(f"plan found for {name} after {error.attempts} attempt(s) without one")
+                self.events.log.append(PlanFound(name, error.attempts))
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self.progress = PlanProgress(self.compiled, result)
@@ -335,15 +346,14 @@ class ControlCore:
             if kept is None:
                 continue
             self.progress = PlanProgress(self.compiled, kept)
-            self.events.log.append(f"shorter plan taken: {len(kept.steps)} steps left instead of {left} "
-                                   f"({better.stats.method})")
+            self.events.log.append(ShorterPlan(len(kept.steps), left, better.stats.method))
             return True
         return False
 
     # --- the operator's interventions (controller/requests.py checks them first) ------------
-    def withdraw(self, name: str, replan: str | None = None) -> None:
-        """Operation `name` back to `initial` and no longer requested; `replan` (the reason) drops the
-        current plan, which was made for its goal too."""
+    def withdraw(self, name: str, replan: ReplanCause | None = None) -> None:
+        """Operation `name` back to `initial` and no longer requested; `replan` (why) drops the current
+        plan, which was made for its goal too."""
         if name in self.requested:
             self.requested.remove(name)
         self.errors.pop(name, None)
@@ -362,7 +372,7 @@ class ControlCore:
         # Devices went on while paused (automatic transitions and effects): the held plan's
         # trace may have been left in ways the engine cannot see, so plan afresh.
         self.paused = False
-        self._want_plan("resumed")
+        self._want_plan(ReplanCause(ReplanReason.RESUMED))
 
     def force(self, path: str, value: Value, until: Callable[[State], bool] | None = None) -> None:
         i = self.compiled.index[path]

@@ -27,6 +27,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
+from common.ctl import ReplanCause, ReplanReason
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
 
@@ -135,7 +136,7 @@ class TickResult:
     changed_commands: dict[str, Value] = field(default_factory=dict)
     started: list[str] = field(default_factory=list)
     finished: list[str] = field(default_factory=list)
-    replan: str | None = None  # why the current plan cannot be followed
+    replan: ReplanCause | None = None  # why the current plan cannot be followed
 
 
 class Engine:
@@ -238,7 +239,7 @@ class Engine:
                 self._observe(progress, state)
                 deviation = progress.deviation(self.compiled, state)
                 if deviation is not None:
-                    result.replan = f"the state left the plan: {deviation}"
+                    result.replan = ReplanCause(ReplanReason.LEFT_PLAN, deviation)
                     break
                 fired_one = False
                 for j in list(progress.pending()):
@@ -246,8 +247,7 @@ class Engine:
                     if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
                         continue
                     if not t.guard(state):
-                        step = progress.plan.steps[j]
-                        result.replan = f"the next step can no longer fire: {step}"
+                        result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
                         break
                     state = t.outcomes[0](state)
                     result.fired.append(t.name)

@@ -18,6 +18,8 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
+from common.ctl import PlannedAlone
+
 from .control import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, PlanRequest, anytime_answers, live_budget
 from .planner import NoPlan, Plan
 
@@ -35,7 +37,7 @@ class Limits:
 class Answer:
     generation: int
     result: Plan | NoPlan | None  # None with `final`: nothing more for this request
-    note: str = ""
+    note: PlannedAlone | None = None
     final: bool = False
 
 

@@ -42,7 +42,7 @@ import logging
 from collections.abc import Callable
 
 from common.bus import Bus, Request
-from common.ctl import ACTIONS, ConsoleReply, ConsoleRequest
+from common.ctl import ACTIONS, ConsoleReply, ConsoleRequest, ReplanCause, ReplanReason, RequestAnswered
 from common.messages import MessageError, decode, encode
 from common.model import Kind, OperationState, Predicate, Value
 from common.model.predicates import And, format_value
@@ -135,11 +135,9 @@ class Requests:
             reply = refused(f"unknown action {request.action!r} (one of {', '.join(ACTIONS)})")
         else:
             reply = handler(request)
-        origin = f" ({request.origin})" if request.origin else ""
-        outcome = "accepted" if reply.accepted else "refused"
-        detail = f": {reply.reason}" if reply.reason else ""
-        self.core.events.log.append(f"console{origin}: {request.describe()} {outcome}{detail}")
-        log.info("console%s: %s %s%s", origin, request.describe(), outcome, detail)
+        event = RequestAnswered(request.describe(), reply.accepted, reply.reason, request.origin)
+        self.core.events.log.append(event)
+        log.info("%s", event.text)
         if reply.accepted:
             self.wake()
         return reply
@@ -168,7 +166,7 @@ class Requests:
         if state is OperationState.INITIAL and name not in self.core.requested:
             return refused(f"{name} is not started")
         running = state is not OperationState.INITIAL
-        self.core.withdraw(name, f"operation {name} stopped by the operator" if running else None)
+        self.core.withdraw(name, ReplanCause(ReplanReason.STOPPED_BY_OPERATOR, name) if running else None)
         self.persist(list(self.core.requested))
         return accepted("" if running else "it no longer waits to start")
 
@@ -177,7 +175,8 @@ class Requests:
             return refused(f"{name} is executing: stop it first")
         if state is OperationState.INITIAL:
             return refused(f"{name} is already initial")
-        self.core.withdraw(name, f"operation {name} reset by the operator" if state is OperationState.ERROR else None)
+        in_error = state is OperationState.ERROR
+        self.core.withdraw(name, ReplanCause(ReplanReason.RESET_BY_OPERATOR, name) if in_error else None)
         self.persist(list(self.core.requested))
         return accepted()
 

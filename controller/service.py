@@ -21,7 +21,18 @@ from collections.abc import Callable, Iterable
 
 from common.bus import Bus, Keys, Sample
 from common.config import StationConfig
-from common.ctl import LoopStats, OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.ctl import (
+    HubAlive,
+    HubGone,
+    LoopStats,
+    MirrorsMissing,
+    NoPlanFound,
+    OperationInfo,
+    PlanStepInfo,
+    ResourceHealthInfo,
+    StateSnapshot,
+    StatusMessage,
+)
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.model.compiled import State
@@ -137,10 +148,10 @@ class ControllerService:
             by_hub: dict[str, list[str]] = {}
             for r in missing:
                 by_hub.setdefault(self.hubs_of[r], []).append(r)
-            report = "; ".join(f"hub {h}: {', '.join(rs)}" for h, rs in sorted(by_hub.items()))
+            event = MirrorsMissing(by_hub)
             log.warning("no mirror within %.1f s from %s: their commands start from the model's initial values",
-                        self.mirror_wait, report)
-            self.core.events.log.append(f"start: no mirror from {report}")
+                        self.mirror_wait, event.report)
+            self.core.events.log.append(event)
         taken = {f"{r}.{name}": v for r, values in self.mirrors.items() for name, v in values.items()}
         if taken:
             self.core.load(taken)
@@ -236,7 +247,7 @@ class ControllerService:
             hub = self.keys.hub_of(event.key)
             if hub is not None:
                 self.watchdog.hub_alive(hub, event.alive)
-                self.core.events.log.append(f"hub {hub} {'alive' if event.alive else 'gone'}")
+                self.core.events.log.append(HubAlive(hub) if event.alive else HubGone(hub))
                 self._dirty.set()
 
     async def _tick_loop(self, stop: asyncio.Event) -> None:
@@ -314,7 +325,7 @@ class ControllerService:
             try:
                 if self.planner_process is not None:
                     async for answer in self.planner_process.answers(request):
-                        if answer.note:
+                        if answer.note is not None:
                             self.core.events.log.append(answer.note)
                         if not first_answered.is_set():
                             self._adopt(request, answer.result)
@@ -349,13 +360,13 @@ class ControllerService:
     def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:
         said = len(self.core.events.log)
         self.core.adopt(request, result)
-        for line in self.core.events.log[said:]:
-            if line.startswith("no plan"):  # once per goal and reason, not at every retry
-                log.warning("%s", line)
+        for event in self.core.events.log[said:]:
+            if isinstance(event, NoPlanFound):  # once per goal and reason, not at every retry
+                log.warning("%s", event.text)
         if isinstance(result, Plan):
             stats = result.stats
             log.info("plan: %d steps for %d goals in %.1f ms (%s%s; %s)", len(result.steps), len(request.goals),
-                     stats.seconds * 1000, stats.method, ", shortest" if stats.minimal else "", request.reason)
+                     stats.seconds * 1000, stats.method, ", shortest" if stats.minimal else "", request.reason.text)
         self._status_due = True
         self._dirty.set()
 

@@ -26,7 +26,7 @@ import pytest
 from textual.pilot import Pilot
 from textual.widgets import Static
 
-from common.ctl import ConsoleReply
+from common.ctl import ConsoleReply, RequestAnswered
 from common.model import OperationState
 from controller.console.app import ConsoleApp
 from controller.console.link import ConsoleLink
@@ -188,8 +188,9 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         assert refused.reason == "'nowhere' is outside the domain of ur.pos_m ({home, at_bolt1, at_bolt2, unknown})"
 
         # The controller logged every request in its event log, which the console shows.
-        events = [e for s in station.watch.statuses() for e in s.message.events]
-        assert any(e.startswith("console (") and "confirm accepted: human confirmed place_bolts" in e for e in events)
+        requests = [e for s in station.watch.statuses() for e in s.message.events if isinstance(e, RequestAnswered)]
+        assert any(e.origin and (e.request, e.accepted, e.detail) == ("confirm", True, "human confirmed place_bolts")
+                   for e in requests)
 
     svg = screenshot.read_text()
     assert svg.startswith("<svg")

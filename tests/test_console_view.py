@@ -6,7 +6,29 @@ import pytest
 from textual.app import App, ComposeResult
 
 from common.config import load_station
-from common.ctl import OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.ctl import (
+    ConsoleEvent,
+    ControllerChanged,
+    HubAlive,
+    HubGone,
+    MirrorsMissing,
+    NoPlanFound,
+    OperationInfo,
+    PlanFound,
+    PlanKept,
+    PlannedAlone,
+    Recovered,
+    ReplanCause,
+    Replanned,
+    ReplanReason,
+    RequestAnswered,
+    ResourceHealthInfo,
+    ShorterPlan,
+    StateSnapshot,
+    StatusMessage,
+    Unhealthy,
+)
+from common.messages import decode, encode
 from common.model import Kind, OperationState
 from controller.console.station import StationInfo
 from controller.console.table import RowTable
@@ -16,34 +38,77 @@ from controller.console.view import (
     OperationClock,
     StateFilter,
     StateView,
+    event_text,
     parse_force,
 )
 from deploy.cli import build_parser
 from tests.fault_station.harness import ROOT
 
 
-def status(events: list[str], *, controller: str = "ctl-1", health: list[ResourceHealthInfo] | None = None,
+def status(events: list[ConsoleEvent], *, controller: str = "ctl-1", health: list[ResourceHealthInfo] | None = None,
            operations: list[OperationInfo] | None = None, uptime: float = 0.0) -> StatusMessage:
     return StatusMessage(station="s", controller=controller, time=0.0, uptime=uptime, operations=operations or [],
                          health=health or [], plan=[], plan_goals=[], plans=0, replans=0, no_plans=0, abilities=0,
                          events=events)
 
 
-def test_event_feed_shows_each_line_of_the_sliding_window_once() -> None:
+def test_event_feed_shows_each_event_of_the_sliding_window_once() -> None:
     feed = EventFeed()
-    assert feed.new(status(["a", "b"])) == ["a", "b"]
-    assert feed.new(status(["a", "b"])) == []
-    assert feed.new(status(["b", "c", "d"])) == ["c", "d"]  # "a" slid out of the window
-    assert feed.new(status(["x"], controller="ctl-2")) == ["controller ctl-2 (was ctl-1)", "x"]
+    a, b, c, d, x = (HubAlive(hub) for hub in "abcdx")
+    assert feed.new(status([a, b])) == [a, b]
+    assert feed.new(status([a, b])) == []
+    assert feed.new(status([b, c, d])) == [c, d]  # a slid out of the window
+    assert feed.new(status([x], controller="ctl-2")) == [ControllerChanged("ctl-2", "ctl-1"), x]
 
 
 def test_event_feed_notes_the_watchdogs_verdicts() -> None:
     feed = EventFeed()
     ok, lost = ResourceHealthInfo("nr", "pi-tool", True), ResourceHealthInfo("nr", "pi-tool", False, "hub gone")
     assert feed.new(status([], health=[ok])) == []
-    assert feed.new(status([], health=[lost])) == ["watchdog: nr unhealthy: hub gone"]
+    assert feed.new(status([], health=[lost])) == [Unhealthy("nr", "hub gone")]
     assert feed.new(status([], health=[lost])) == []
-    assert feed.new(status([], health=[ok])) == ["watchdog: nr recovered"]
+    assert feed.new(status([], health=[ok])) == [Recovered("nr")]
+
+
+# Each kind of event as the controller logs it, and the line the console shows for it.
+EVENT_LINES: list[tuple[ConsoleEvent, str, str]] = [
+    (Replanned(ReplanCause(ReplanReason.LEFT_PLAN, "g.level_m is 'high', expected 'low'")),
+     "replan: the state left the plan: g.level_m is 'high', expected 'low'", "yellow"),
+    (Replanned(ReplanCause(ReplanReason.HEALTH_CHANGED, "nr, ur")),
+     "replan: resource health changed (disabled: nr, ur)", "yellow"),
+    (Replanned(ReplanCause(ReplanReason.STOPPED_BY_OPERATOR, "PlaceBolts")),
+     "replan: operation PlaceBolts stopped by the operator", "yellow"),
+    (Replanned(ReplanCause(ReplanReason.GOALS_CHANGED)), "replan: goals changed", "yellow"),
+    (PlanKept(3, ReplanCause(ReplanReason.LEFT_PLAN, "cam.zone_m is 'robot', expected 'none'")),
+     "plan kept: 3 steps still reach the goals (the state left the plan: cam.zone_m is 'robot', expected 'none')", ""),
+    (ShorterPlan(12, 15, "astar"), "shorter plan taken: 12 steps left instead of 15 (astar)", ""),
+    (PlannedAlone("RobotHome", 3, "expansion limit"),
+     "planned RobotHome alone: 3 goals together were not solved within the budget (expansion limit)", ""),
+    (NoPlanFound(["LampOn", "LampOff"], True, "forbidden"), "no plan (unreachable) for LampOn, LampOff: forbidden",
+     "bold red"),
+    (NoPlanFound(["LampOn"], False, "budget"), "no plan (not found in time) for LampOn: budget", "bold red"),
+    (PlanFound("LampOn", 4), "plan found for LampOn after 4 attempt(s) without one", ""),
+    (HubAlive("pi-tool"), "hub pi-tool alive", ""),
+    (HubGone("pi-tool"), "hub pi-tool gone", "bold red"),
+    (MirrorsMissing({"pi-tool": ["nr", "rfid"], "decs": ["ur"]}),
+     "start: no mirror from hub decs: ur; hub pi-tool: nr, rfid", ""),
+    (RequestAnswered("start Op", False, "Op is finished: reset it to run it again", "ann@decs"),
+     "console (ann@decs): start Op refused: Op is finished: reset it to run it again", "cyan"),
+    (RequestAnswered("pause", True), "console: pause accepted", "cyan"),
+    (Unhealthy("nr", "hub gone"), "watchdog: nr unhealthy: hub gone", "bold red"),
+    (Recovered("nr"), "watchdog: nr recovered", "green"),
+    (ControllerChanged("ctl-2", "ctl-1"), "controller ctl-2 (was ctl-1)", ""),
+]
+
+
+@pytest.mark.parametrize(("event", "line", "style"), EVENT_LINES)
+def test_each_event_reads_as_before_survives_the_wire_and_is_styled_by_its_kind(event: ConsoleEvent, line: str,
+                                                                                style: str) -> None:
+    assert event.text == line
+    received = decode(encode(status([event])), StatusMessage).events
+    assert received == [event] and type(received[0]) is type(event)
+    shown = event_text(received[0])
+    assert (shown.plain, str(shown.style)) == (line, style)
 
 
 def test_operation_clock_times_the_changes_the_controller_does_not() -> None:

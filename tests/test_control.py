@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from common.ctl import NoPlanFound, PlanFound, PlanKept, ReplanReason
 from common.model import Domain, Model, OperationState, Phase, Resource, ability, command, measured, operation
 from common.model.compiled import CompiledModel
 from controller.control import ControlCore, PlanRequest
@@ -35,7 +36,8 @@ def test_a_change_no_step_waits_for_keeps_the_plan() -> None:
     core.ingest({"g.level_m": "mid"})  # the plan predicted "low"; its steps still fire at "mid"
     core.tick()
     assert core.need_plan_reason is None and core.progress is not None
-    assert any(line.startswith("plan kept") for line in core.events.log)
+    kept = [event for event in core.events.log if isinstance(event, PlanKept)]
+    assert len(kept) == 1 and kept[0].cause.reason is ReplanReason.LEFT_PLAN and "g.level_m" in kept[0].cause.detail
     assert "a.switch.enabled" in core.tick().fired
 
 
@@ -43,7 +45,9 @@ def test_a_change_that_blocks_the_next_step_asks_for_a_new_plan() -> None:
     core = started_core()
     core.ingest({"g.level_m": "high"})
     core.tick()
-    assert core.progress is None and core.need_plan_reason is not None and "g.level_m" in core.need_plan_reason
+    why = core.need_plan_reason
+    assert core.progress is None and why is not None
+    assert why.reason is ReplanReason.LEFT_PLAN and "g.level_m" in why.detail
     assert "a.switch.enabled" not in core.tick().fired
 
 
@@ -72,8 +76,9 @@ def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() 
         now[0] = error.retry_at
         core.tick()
     assert waits == [2.0, 4.0, 8.0, 16.0]
-    said = [line for line in core.events.log if line.startswith("no plan")]
-    assert len(said) == 1 and "unreachable" in said[0] and "LampOn" in said[0]
+    said = [event for event in core.events.log if isinstance(event, NoPlanFound)]
+    assert len(said) == 1 and said[0].proven and said[0].operations == ["LampOn"]
+    assert said[0].text.startswith("no plan (unreachable) for LampOn: ")
     assert "attempt 4" in core.error_text("LampOn")
     core.ingest({"g.level_m": "low"})
     core.tick()
@@ -81,7 +86,7 @@ def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() 
     assert request is not None
     core.adopt(request, core.solve(request))
     assert core.op_state("LampOn") == OperationState.EXECUTING and "LampOn" not in core.errors
-    assert any(line.startswith("plan found for LampOn after 4 attempt") for line in core.events.log)
+    assert PlanFound("LampOn", 4) in core.events.log
 
 
 def test_a_shorter_plan_is_taken_only_while_valid_from_the_measured_state() -> None:

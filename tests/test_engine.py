@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from common.ctl import ReplanReason
 from common.model import (
     Domain,
     Model,
@@ -76,7 +77,8 @@ def test_a_failed_effect_leaves_the_plan_and_asks_for_a_replan() -> None:
     state = engine.tick(c.initial(), progress=progress).state
     state = engine.tick(c.with_values(state, {"nr.run_m": True}), progress=progress).state
     tick = engine.tick(c.with_values(state, {"nr.fail_m": True}), progress=progress)
-    assert tick.replan is not None and "nr.fail_m" in tick.replan
+    assert tick.replan is not None and tick.replan.reason is ReplanReason.LEFT_PLAN
+    assert "nr.fail_m" in tick.replan.detail
 
 
 def test_independent_steps_run_in_parallel_dependent_ones_in_order() -> None:
@@ -145,7 +147,8 @@ def test_an_effect_seen_before_the_steps_it_was_ordered_after_is_no_deviation() 
     assert tick.fired == ["a.switch.enabled"] and tick.replan is None
     # A value no step of the plan writes is a deviation still.
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "robot"}), progress=progress)
-    assert tick.replan is not None and "z.zone_m" in tick.replan
+    assert tick.replan is not None and tick.replan.reason is ReplanReason.LEFT_PLAN
+    assert "z.zone_m" in tick.replan.detail
 
 
 def test_a_command_waits_for_the_earlier_steps_that_read_its_device() -> None:
@@ -179,4 +182,5 @@ def test_an_effect_seen_before_a_record_that_needed_the_old_value_is_a_deviation
     assert tick.fired == ["o.send.enabled"]
     # The operator is seen in the shared zone before the lamp is lit: the record can no longer happen.
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=frozenset({"a"}))
-    assert tick.replan is not None and "z.zone_m" in tick.replan
+    assert tick.replan is not None and tick.replan.reason is ReplanReason.LEFT_PLAN
+    assert "z.zone_m" in tick.replan.detail

@@ -12,7 +12,7 @@ import asyncio
 import pytest
 
 from common.bus import Request
-from common.ctl import ConsoleReply, ConsoleRequest
+from common.ctl import ConsoleReply, ConsoleRequest, RequestAnswered
 from common.messages import decode, encode
 from common.model import Domain, Model, OperationState, Value, estimated, operation, tracking
 from common.resources import nutrunner, operator, ur
@@ -94,7 +94,9 @@ def test_start_requests_and_says_what_the_operation_waits_for(rig: Rig) -> None:
     assert rig.op("TightenBolt1") == OperationState.INITIAL  # its precondition does not hold yet
     again = rig.ask("start", operation="TightenBolt1")
     assert not again.accepted and "already started" in again.reason
-    assert rig.core.events.log[-1].startswith("console (test): start TightenBolt1 refused: ")
+    said = rig.core.events.log[-1]
+    assert isinstance(said, RequestAnswered) and (said.request, said.accepted) == ("start TightenBolt1", False)
+    assert said.text.startswith("console (test): start TightenBolt1 refused: ")
 
 
 def test_start_of_an_unknown_operation_is_refused(rig: Rig) -> None:

@@ -162,8 +162,8 @@ class ConsoleApp(App[None]):
             if status is not self._status_seen:
                 self._status_seen, self._status_seen_at = status, now
                 log = self.query_one("#events", RichLog)
-                for line in self.events.new(status):
-                    log.write(event_text(line))
+                for event in self.events.new(status):
+                    log.write(event_text(event))
             changed += self.table("operations").sync(operation_rows(status, self.info, self.clock))
             changed += self.table("plan").sync(plan_rows(status))
             self.table("plan").border_subtitle = plan_summary(status)

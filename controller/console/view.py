@@ -13,7 +13,17 @@ from dataclasses import dataclass
 
 from rich.text import Text
 
-from common.ctl import OperationInfo, StateSnapshot, StatusMessage
+from common.ctl import (
+    ControllerChanged,
+    Event,
+    OperationInfo,
+    Recovered,
+    Replanned,
+    RequestAnswered,
+    StateSnapshot,
+    StatusMessage,
+    Unhealthy,
+)
 from common.model import Kind, OperationState, ParseError, Value, parse_action
 from common.model.predicates import Ref, format_value
 from common.selftest import SelftestMessage
@@ -193,54 +203,48 @@ class StateView:
 # --- events ------------------------------------------------------------------------------------
 
 class EventFeed:
-    """New lines of the controller's event log. A status carries the last lines only: what is new is
+    """New events of the controller's event log. A status carries the last events only: what is new is
     what follows the longest overlap with the previous window; a new controller starts afresh."""
 
     def __init__(self) -> None:
         self._controller = ""
-        self._window: list[str] = []
+        self._window: list[Event] = []
         self._healthy: dict[str, bool] = {}
 
-    def new(self, status: StatusMessage) -> list[str]:
-        lines: list[str] = []
+    def new(self, status: StatusMessage) -> list[Event]:
+        events: list[Event] = []
         if status.controller != self._controller:
             if self._controller:
-                lines.append(f"controller {status.controller} (was {self._controller})")
+                events.append(ControllerChanged(status.controller, self._controller))
             self._controller, self._window, self._healthy = status.controller, [], {}
-        window, previous = list(status.events), self._window
+        window: list[Event] = list(status.events)
+        previous = self._window
         overlap = next(k for k in range(min(len(previous), len(window)), -1, -1)
                        if previous[len(previous) - k:] == window[:k])
-        lines += window[overlap:]
+        events += window[overlap:]
         self._window = window
-        return lines + self._health_changes(status)
+        return events + self._health_changes(status)
 
-    def _health_changes(self, status: StatusMessage) -> list[str]:
+    def _health_changes(self, status: StatusMessage) -> list[Event]:
         # The watchdog's verdicts are in the status, not in the controller's log: the console notes the edges.
-        lines = []
+        events: list[Event] = []
         for h in status.health:
             before = self._healthy.get(h.resource)
             if before is None and h.healthy:
                 pass
             elif not h.healthy and before is not False:
-                lines.append(f"watchdog: {h.resource} unhealthy: {h.reason}")
+                events.append(Unhealthy(h.resource, h.reason))
             elif h.healthy and before is False:
-                lines.append(f"watchdog: {h.resource} recovered")
+                events.append(Recovered(h.resource))
             self._healthy[h.resource] = h.healthy
-        return lines
+        return events
 
 
-def event_text(line: str) -> Text:
-    if line.startswith("watchdog:") and line.endswith("recovered"):
-        style = "green"
-    elif line.startswith(("watchdog:", "no plan")) or " gone" in line:
-        style = "bold red"
-    elif line.startswith("replan"):
-        style = "yellow"
-    elif line.startswith("console"):
-        style = "cyan"
-    else:
-        style = ""
-    return Text(line, style)
+EVENT_STYLES: dict[type[Event], str] = {Recovered: "green", Replanned: "yellow", RequestAnswered: "cyan"}
+
+
+def event_text(event: Event) -> Text:
+    return Text(event.text, "bold red" if event.fault else EVENT_STYLES.get(type(event), ""))
 
 
 # --- the force input ---------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from common.ctl import NoPlanFound, PlanFound
 from common.model import Model, OperationState
 from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget
@@ -30,7 +31,7 @@ class RunSummary:
     wall_seconds: float
     planning_seconds: float
     reason: str = ""
-    log: list[str] = field(default_factory=list)
+    log: list[str] = field(default_factory=list)  # the event log, as text
 
 
 Reporter = Callable[[str], None]
@@ -88,9 +89,9 @@ def run_in_process(
             planning += time.perf_counter() - began
             said = len(core.events.log)
             core.adopt(request, answer)
-            for line in core.events.log[said:]:
-                if line.startswith(("no plan", "plan found for")):  # once per goal and reason, not per retry
-                    say(f"{now:7.1f}s  {line}")
+            for event in core.events.log[said:]:
+                if isinstance(event, NoPlanFound | PlanFound):  # once per goal and reason, not per retry
+                    say(f"{now:7.1f}s  {event.text}")
             continue
         changes = emulator.step(compiled.unpack(core.state), now)
         if changes:
@@ -103,8 +104,8 @@ def run_in_process(
         if due is None:
             waiting = [n for n in core.executing()]
             reason = f"stuck: nothing can happen; executing: {', '.join(waiting) or 'none'}"
-            for line in core.events.log[-5:]:
-                say(f"  {line}")
+            for event in core.events.log[-5:]:
+                say(f"  {event.text}")
             break
         if due - now > 0 and realtime:
             time.sleep(due - now)
@@ -125,5 +126,5 @@ def run_in_process(
         wall_seconds=time.perf_counter() - start_wall,
         planning_seconds=planning,
         reason=reason,
-        log=events.log,
+        log=[event.text for event in events.log],
     )

@@ -234,9 +234,9 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
         say(f"{'finished' if result == 0 else 'NOT finished'}: {done}/{len(last.operations)} operations, "
             f"{last.abilities} abilities started, {last.plans} plans, {last.replans} replans, "
             f"{last.no_plans} goals without a plan, in {elapsed:.1f} s")
-        faults = [e for e in last.events if "gone" in e or "no plan" in e]
+        faults = [e for e in last.events if e.fault]
         if faults:
-            say(f"faults seen: {len(faults)}; last: {faults[-1]}")
+            say(f"faults seen: {len(faults)}; last: {faults[-1].text}")
         if result != 0:
             for h in last.health:
                 if not h.healthy:

@@ -288,7 +288,7 @@ class Station:
         health = "; ".join(f"{h.resource}: {'ok' if h.healthy else h.reason}" for h in status.health)
         return (f"controller {status.controller} at {status.uptime:.1f} s: {ops}; health: {health}; "
                 f"plans {status.plans}, replans {status.replans}, no plans {status.no_plans}; "
-                f"events: {status.events[-6:]}")
+                f"events: {[event.text for event in status.events[-6:]]}")
 
     # the persisted state
     def persisted(self) -> dict[str, Any]:
