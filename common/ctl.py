@@ -99,18 +99,18 @@ class Event(msgspec.Struct, frozen=True, tag_field="kind"):
     """One entry of the controller's event log (`StatusMessage.events`), or of the console's own notes."""
 
     fault: ClassVar[bool] = False  # something went wrong that an operator should see
+    template: ClassVar[str] = ""  # `text`, from the event's fields by name
 
     @property
     def text(self) -> str:
-        raise NotImplementedError
+        return self.template.format(**msgspec.structs.asdict(self))
 
 
 class Replanned(Event, tag="replan"):
-    cause: ReplanCause
+    """The plan under way (if any) is dropped and a new one asked for."""
 
-    @property
-    def text(self) -> str:
-        return f"replan: {self.cause.text}"
+    cause: ReplanCause
+    template: ClassVar[str] = "replan: {cause.text}"
 
 
 class PlanKept(Event, tag="plan_kept"):
@@ -118,20 +118,16 @@ class PlanKept(Event, tag="plan_kept"):
 
     steps: int
     cause: ReplanCause
-
-    @property
-    def text(self) -> str:
-        return f"plan kept: {self.steps} steps still reach the goals ({self.cause.text})"
+    template: ClassVar[str] = "plan kept: {steps} steps still reach the goals ({cause.text})"
 
 
 class ShorterPlan(Event, tag="shorter_plan"):
+    """The planner kept searching and found a shorter way from where the station is: it replaces the rest."""
+
     steps: int
     instead_of: int
     method: str
-
-    @property
-    def text(self) -> str:
-        return f"shorter plan taken: {self.steps} steps left instead of {self.instead_of} ({self.method})"
+    template: ClassVar[str] = "shorter plan taken: {steps} steps left instead of {instead_of} ({method})"
 
 
 class PlannedAlone(Event, tag="planned_alone"):
@@ -140,11 +136,8 @@ class PlannedAlone(Event, tag="planned_alone"):
     operation: str
     goals: int
     reason: str
-
-    @property
-    def text(self) -> str:
-        return (f"planned {self.operation} alone: {self.goals} goals together were not solved "
-                f"within the budget ({self.reason})")
+    template: ClassVar[str] = ("planned {operation} alone: {goals} goals together were not solved within the budget "
+                               "({reason})")
 
 
 class NoPlanFound(Event, tag="no_plan"):
@@ -167,27 +160,22 @@ class PlanFound(Event, tag="plan_found"):
 
     operation: str
     attempts: int
-
-    @property
-    def text(self) -> str:
-        return f"plan found for {self.operation} after {self.attempts} attempt(s) without one"
+    template: ClassVar[str] = "plan found for {operation} after {attempts} attempt(s) without one"
 
 
 class HubAlive(Event, tag="hub_alive"):
-    hub: str
+    """The hub's liveliness token appeared (a start or a reconnection)."""
 
-    @property
-    def text(self) -> str:
-        return f"hub {self.hub} alive"
+    hub: str
+    template: ClassVar[str] = "hub {hub} alive"
 
 
 class HubGone(Event, tag="hub_gone"):
-    hub: str
-    fault: ClassVar[bool] = True
+    """The hub's liveliness token went away: its resources go unhealthy."""
 
-    @property
-    def text(self) -> str:
-        return f"hub {self.hub} gone"
+    hub: str
+    template: ClassVar[str] = "hub {hub} gone"
+    fault: ClassVar[bool] = True
 
 
 class MirrorsMissing(Event, tag="mirrors_missing"):
@@ -219,35 +207,28 @@ class RequestAnswered(Event, tag="request"):
         return f"console{origin}: {self.request} {'accepted' if self.accepted else 'refused'}{detail}"
 
 
-class Unhealthy(Event, tag="unhealthy"):
-    """The watchdog's verdict: the resource is unhealthy (the console notes it from the status's health)."""
-
-    resource: str
-    reason: str
-    fault: ClassVar[bool] = True
-
-    @property
-    def text(self) -> str:
-        return f"watchdog: {self.resource} unhealthy: {self.reason}"
-
-
-class Recovered(Event, tag="recovered"):
-    resource: str
-
-    @property
-    def text(self) -> str:
-        return f"watchdog: {self.resource} recovered"
-
-
 class ControllerChanged(Event, tag="controller_changed"):
     """The console sees another controller publish (a restart)."""
 
     controller: str
     previous: str
+    template: ClassVar[str] = "controller {controller} (was {previous})"
 
-    @property
-    def text(self) -> str:
-        return f"controller {self.controller} (was {self.previous})"
+
+class Unhealthy(Event, tag="unhealthy"):
+    """The watchdog's verdict: the resource is unhealthy (the console notes it from the status's health)."""
+
+    resource: str
+    reason: str
+    template: ClassVar[str] = "watchdog: {resource} unhealthy: {reason}"
+    fault: ClassVar[bool] = True
+
+
+class Recovered(Event, tag="recovered"):
+    """The watchdog's verdict: the resource is healthy again."""
+
+    resource: str
+    template: ClassVar[str] = "watchdog: {resource} recovered"
 
 
 ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | HubAlive | HubGone
