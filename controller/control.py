@@ -190,6 +190,10 @@ class ControlCore:
     def all_finished(self) -> bool:
         return all(self.state[i] == OperationState.FINISHED for i in self.op_index.values())
 
+    def _set_op_state(self, name: str, state: OperationState) -> None:
+        # The member's plain string: the state tuple holds the model's domain values, as the hubs' do.
+        self.state = self.compiled.with_values(self.state, {self.model.operation_by_name[name].state_path: state.value})
+
     def goals(self) -> dict[str, Predicate]:
         now = self.clock()
         goals = {}
@@ -360,10 +364,6 @@ class ControlCore:
         self._set_op_state(name, OperationState.INITIAL)
         if replan is not None:
             self._want_plan(replan)
-
-    def _set_op_state(self, name: str, state: OperationState) -> None:
-        # The plain string, as every value of the state tuple (the model's domain)
-        self.state = self.compiled.with_values(self.state, {self.model.operation_by_name[name].state_path: state.value})
 
     def pause(self) -> None:
         self.paused = True
