@@ -32,12 +32,15 @@ import json
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Annotated
+
+import msgspec
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
 
 log = logging.getLogger(__name__)
 
@@ -121,8 +124,8 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
     async def write(self, commands: Mapping[str, Value]) -> None:
         return None  # the camera has no command variables
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -197,12 +200,24 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
         self._reader = None
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> CameraTracker:
-    return CameraTracker(
-        resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 7001)),
-        zones=require(params, "zones"),
-        stale_after=float(params.get("stale_after", 0.5)),
-        backoff=Backoff.from_params(params),
-    )
+Rectangle = Annotated[list[float], msgspec.Meta(min_length=4, max_length=4)]  # [x_min, y_min, x_max, y_max]
+
+
+class CameraParams(DriverParams, frozen=True, kw_only=True):
+    host: str
+    port: Port = 7001
+    zones: dict[str, list[Rectangle]]
+    stale_after: Positive = 0.5
+
+    def __post_init__(self) -> None:
+        for name in self.zones:
+            if name not in ZONE_ORDER:
+                raise invalid(f"zones.{name}", f"unknown zone {name!r}; zones are {', '.join(ZONE_ORDER)}")
+
+
+def build(resource: str, params: CameraParams) -> CameraTracker:
+    return CameraTracker(resource, host=params.host, port=params.port, zones=params.zones,
+                         stale_after=params.stale_after, backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(CameraParams, build)

@@ -36,14 +36,16 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Annotated
 
+import msgspec
 import serial
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, NonNegative
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
 
 log = logging.getLogger(__name__)
 
@@ -121,8 +123,8 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
     async def write(self, commands: Mapping[str, Value]) -> None:
         return None  # the reader has no command variables
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -249,13 +251,18 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
         await asyncio.to_thread(shutdown)
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> RfidSerial:
-    return RfidSerial(
-        resource,
-        port=str(require(params, "serial_port")),
-        baudrate=int(params.get("baudrate", 9600)),
-        operators=params.get("operators", ()),
-        session_timeout=float(params.get("session_timeout", 8 * 3600.0)),
-        repeat_window=float(params.get("repeat_window", 1.0)),
-        backoff=Backoff.from_params(params),
-    )
+class RfidParams(DriverParams, frozen=True, kw_only=True):
+    serial_port: str
+    baudrate: Annotated[int, msgspec.Meta(gt=0)] = 9600
+    operators: list[str] | dict[str, str] = []  # allowed tags, or {tag: operator name}
+    session_timeout: NonNegative = 8 * 3600.0  # 0: never
+    repeat_window: NonNegative = 1.0
+
+
+def build(resource: str, params: RfidParams) -> RfidSerial:
+    return RfidSerial(resource, port=params.serial_port, baudrate=params.baudrate, operators=params.operators,
+                      session_timeout=params.session_timeout, repeat_window=params.repeat_window,
+                      backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(RfidParams, build)

@@ -22,24 +22,20 @@ raises ``DeviceUnavailable``.  On (re)connect the driver drives the last command
 unlocks on its own.
 
 Safe state: none. ``lock_c`` keeps its value (a tool changer never drops its tool), so
-``safe_state()`` is empty; the valves hold position and nothing else moves.  The hub's
-own write right after ``safe_state()`` (the last command again, or the initial
-``lock_c = false`` at hub start) leaves the solenoids as they are
-(``hubs.drivers.safestate``): a hub start never unlocks a held tool.
+``enter_safe_state()`` changes nothing and returns ``{}``: the valves hold position and
+nothing else moves, and a hub (re)start never unlocks a held tool.
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Mapping
-from typing import Any
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.modbus_io import ModbusLink
-from hubs.drivers.params import require
+from hubs.drivers.modbus_io import Address, ModbusLink, ModbusParams
 from hubs.drivers.reconnect import Backoff, LinkedDriver
-from hubs.drivers.safestate import SafeStateWrite
+from hubs.drivers.registry import DriverPlugin
 
 TOOL_CODES = {0: "none", 1: "nutrunner", 2: "lift_tool", 3: "filter_tool"}
 LOCKED, UNLOCKED, PRESSURE, PRESENT, CODE0, CODE1 = range(6)
@@ -63,7 +59,6 @@ class RspModbus(LinkedDriver[ModbusLink]):
         self.coil_base = coil_base
         self.di_base = di_base
         self._desired_lock: bool | None = None
-        self._safe_write = SafeStateWrite()
         self._link = ModbusLink(
             resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._on_connect
         )
@@ -78,14 +73,11 @@ class RspModbus(LinkedDriver[ModbusLink]):
         if "lock_c" not in commands:
             return
         lock = bool(commands["lock_c"])
-        if self._safe_write.consume():
-            return  # the hub's write while entering the safe state (or its initial value at start): keep the lock
         self._desired_lock = lock
         await self._drive(lock)
 
-    def safe_state(self) -> Mapping[str, Value]:
-        self._safe_write.entered()
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # the valves hold: a tool changer never drops its tool
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -152,14 +144,15 @@ class RspModbus(LinkedDriver[ModbusLink]):
                 await self._drive(self._desired_lock, connecting=True)
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> RspModbus:
-    return RspModbus(
-        resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 502)),
-        device_id=int(params.get("device_id", 1)),
-        coil_base=int(params.get("coil_base", 0)),
-        di_base=int(params.get("di_base", 0)),
-        timeout=float(params.get("timeout", 1.0)),
-        backoff=Backoff.from_params(params),
-    )
+class RspParams(ModbusParams, frozen=True, kw_only=True):
+    coil_base: Address = 0
+    di_base: Address = 0
+
+
+def build(resource: str, params: RspParams) -> RspModbus:
+    return RspModbus(resource, host=params.host, port=params.port, device_id=params.device_id,
+                     coil_base=params.coil_base, di_base=params.di_base, timeout=params.timeout,
+                     backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(RspParams, build)

@@ -29,6 +29,9 @@ import contextlib
 import json
 import sys
 import time
+from typing import Any
+
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
 
 
 class CameraTrackerSim:
@@ -150,6 +153,21 @@ async def _serve(host: str, port: int, rate: float, walk: float, control: bool =
             await asyncio.sleep(0.05 if walk else 3600)
     finally:
         await sim.stop()
+
+
+# --- as a simulator plugin (device type camera) ------------------------------------------------
+
+SIM_ZONES = {"shared": [[0.0, 0.0, 2.0, 2.0]], "robot": [[2.0, 0.0, 4.0, 2.0]]}  # where the world's operator walks
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    zones: Any = device.params.get("zones", SIM_ZONES)
+    return SimServer(python_module("hubs.sim.camera_tracker", "--host", "127.0.0.1", "--port", "0", "--control"),
+                     driver_params=lambda address: {**tcp_params(address), "zones": zones}, control=True)
+
+
+PLUGIN = SimulatorPlugin("camera tracker feed", server=_server,
+                         defaults={"host": "127.0.0.1", "port": 7001, "zones": SIM_ZONES})
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,8 +21,16 @@ from __future__ import annotations
 import struct
 import threading
 import time
+from collections.abc import Mapping
+from typing import Any
 
 import can
+import msgspec
+
+from hubs.drivers import lift_can as driver
+from hubs.drivers.base import Driver
+from hubs.drivers.params import Positive
+from hubs.sim.registry import InHubSimulator, SimulatedDevice, SimulatorPlugin
 
 CMD_STOP, CMD_UP, CMD_DOWN = 0, 1, 2
 NMT_BOOT, NMT_OPERATIONAL, NMT_PREOP = 0x00, 0x05, 0x7F
@@ -179,3 +187,25 @@ def ensure_lift(channel: str, node_id: int = 0x10, **kwargs: float) -> LiftSim:
             sim = _SIMS[(channel, node_id)] = LiftSim(channel, node_id, **kwargs)
     sim.start()
     return sim
+
+
+# --- as a simulator plugin (device type lift): python-can `virtual` connects one process's buses ----
+
+class LiftSimParams(driver.LiftParams, frozen=True, kw_only=True):
+    """The driver's parameters, plus the simulated lift's."""
+
+    sim_speed: Positive = 400.0  # mm/s
+    sim_travel: Positive = 800.0  # mm between the limit switches
+
+
+def _build(resource: str, params: LiftSimParams) -> Driver:
+    ensure_lift(params.channel, params.node_id, speed=params.sim_speed, travel=params.sim_travel)
+    return driver.build(resource, msgspec.structs.replace(params, interface="virtual"))
+
+
+def _world(device: SimulatedDevice) -> Mapping[str, Any]:
+    return {"sim_speed": 400.0 * device.speed}
+
+
+PLUGIN = SimulatorPlugin("CAN lift on a virtual bus", in_hub=InHubSimulator(LiftSimParams, _build, _world),
+                         defaults={"channel": "statehub-lift"})

@@ -31,13 +31,22 @@ the clock on every bus transfer, so no thread is needed and tests are determinis
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import random
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Annotated, Any
+
+import msgspec
+
+from hubs.drivers import nutrunner_mcp23017 as driver
+from hubs.drivers.base import Driver
+from hubs.drivers.params import NonNegative
+from hubs.sim.registry import InHubSimulator, SimulatedDevice, SimulatorPlugin
 
 # BANK=0 register addresses (the map the driver uses).
 IODIRA, IODIRB, IPOLA, IPOLB = 0x00, 0x01, 0x02, 0x03
@@ -372,3 +381,33 @@ def ensure_nutrunner(bus_number: int, address: int, **kwargs: object) -> Nutrunn
     if existing is not None:
         return existing
     return bus.add(address, NutrunnerStation(**kwargs))  # type: ignore[arg-type]
+
+
+# --- as a simulator plugin (device type nutrunner): inside the hub, there is no /dev/i2c here ------
+
+class NutrunnerSimParams(driver.NutrunnerParams, frozen=True, kw_only=True):
+    """The driver's parameters, plus the simulated tool's."""
+
+    sim_fail_probability: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    sim_seed: int = 0
+    sim_spinup: NonNegative = 0.05
+    sim_tighten: NonNegative = 0.25
+    sim_reset: NonNegative = 0.02
+
+
+def _build(resource: str, params: NutrunnerSimParams) -> Driver:
+    ensure_nutrunner(params.bus, params.address, wiring=Wiring(**dataclasses.asdict(params.pins())),
+                     timing=NutrunnerTiming(params.sim_spinup, params.sim_tighten, params.sim_reset),
+                     fail_probability=params.sim_fail_probability, seed=params.sim_seed)
+    return driver.build(resource, params, bus_factory=sim_bus(params.bus).open)
+
+
+def _world(device: SimulatedDevice) -> Mapping[str, Any]:
+    timing = NutrunnerTiming()
+    return {"sim_seed": device.seed, "sim_fail_probability": device.failure_probability,
+            "sim_spinup": timing.spinup / device.speed, "sim_tighten": timing.tighten / device.speed,
+            "sim_reset": timing.reset / device.speed}
+
+
+PLUGIN = SimulatorPlugin("MCP23017 and nutrunner on a simulated I2C bus",
+                         in_hub=InHubSimulator(NutrunnerSimParams, _build, _world))

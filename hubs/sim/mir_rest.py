@@ -38,6 +38,8 @@ from typing import Any
 
 from aiohttp import web
 
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
+
 API = "/api/v2.0.0"
 READY, PAUSE, EXECUTING, EMERGENCY_STOP = 3, 4, 5, 10
 STATE_TEXT = {3: "Ready", 4: "Pause", 5: "Executing", 10: "EmergencyStop"}
@@ -289,6 +291,26 @@ async def _serve(host: str, port: int, speed: float) -> None:
         await asyncio.Event().wait()
     finally:
         await server.stop()
+
+
+# --- as a simulator plugin (device type mir) ------------------------------------------------------
+
+DEFAULT_PORT = 8080
+SIM_TARGETS = {  # the simulator's missions and map positions (hubs.toml's are the real robot's)
+    "missions": {"kitting": KITTING_MISSION, "station": STATION_MISSION},
+    "positions": {"kitting": list(KITTING_POSITION), "station": list(STATION_POSITION)},
+}
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    return SimServer(
+        python_module("hubs.sim.mir_rest", "--host", "127.0.0.1", "--port", "0", "--speed", f"{device.speed:g}"),
+        driver_params=lambda address: {**tcp_params(address), "username": "admin", "password": "admin",
+                                       **SIM_TARGETS})
+
+
+PLUGIN = SimulatorPlugin("MiR REST API", server=_server,
+                         defaults={"host": "127.0.0.1", "port": DEFAULT_PORT, **SIM_TARGETS})
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,6 +28,8 @@ import time
 import tty
 from pathlib import Path
 
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module
+
 STX, ETX = b"\x02", b"\x03"
 
 
@@ -115,6 +117,22 @@ class RfidReaderSim:
 
     def __exit__(self, *exc: object) -> None:
         self.stop(remove_link=True)
+
+
+# --- as a simulator plugin (device type rfid) --------------------------------------------------
+
+OPERATOR_TAG = "5A0017C3E1"  # the simulated operator's badge, the one the sim world presents
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    link = device.run_dir.resolve() / f"{device.resource}.tty"
+    return SimServer(python_module("hubs.sim.rfid_serial", "--link", str(link)), ready=r"^(\S+)$",
+                     driver_params=lambda _path: {"serial_port": str(link),
+                                                  "operators": {OPERATOR_TAG: "simulated operator"}},
+                     control=True, files=(link,))
+
+
+PLUGIN = SimulatorPlugin("RFID reader", server=_server)
 
 
 def main(argv: list[str] | None = None) -> int:

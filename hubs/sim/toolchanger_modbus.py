@@ -55,6 +55,9 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
+
+DEFAULT_PORT = 5020  # the simulator's when run alone (a real coupler listens on 502)
 TOOLS = ("nutrunner", "lift_tool", "filter_tool")  # tool code n+1, dock slot n+1
 COIL_LOCK, COIL_UNLOCK = 0, 1
 DI_LOCKED, DI_UNLOCKED, DI_PRESSURE, DI_PRESENT, DI_CODE0, DI_CODE1 = 0, 1, 2, 3, 4, 5
@@ -296,13 +299,28 @@ async def _serve(host: str, port: int, holding: str | None, stroke_time: float) 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Simulated Modbus TCP coupler with RSP tool changer and tool dock")
     parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port (0: any free port)")
     parser.add_argument("--holding", choices=TOOLS, help="start with this tool coupled and locked")
     parser.add_argument("--stroke-time", type=float, default=0.15, help="s per piston stroke (0.15)")
     args = parser.parse_args(argv)
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(_serve(args.host, args.port, args.holding, args.stroke_time))
     return 0
+
+
+# --- as a simulator plugin (device types rsp and dock) -------------------------------------------
+
+def _coupler(device: SimulatedDevice) -> SimServer:
+    # A dock is wired to its tool changer's coupler: both name the same process.
+    changer = device.model.get("changer") if device.device_type == "dock" else None
+    return SimServer(
+        python_module("hubs.sim.toolchanger_modbus", "--host", "127.0.0.1", "--port", "0",
+                      "--stroke-time", f"{max(0.05, 0.15 / device.speed):.4f}"),
+        driver_params=lambda address: {**tcp_params(address), "device_id": 1},
+        name=f"coupler-{changer or device.resource}")
+
+
+PLUGIN = SimulatorPlugin("Modbus coupler", server=_coupler, defaults={"host": "127.0.0.1", "port": DEFAULT_PORT})
 
 
 if __name__ == "__main__":
