@@ -51,11 +51,11 @@ from common.config import DeviceConfig, StationConfig, load_station
 from common.messages import Codec
 from common.model import Model
 from hubs.factory import effective_mode
+from hubs.protocols.coupler import TOOLS
 from hubs.protocols.ur import COMMAND_PORT
 from hubs.sim import cell
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, find_simulator, host_port
 from hubs.sim.rfid_serial import OPERATOR_TAG
-from hubs.sim.toolchanger_modbus import TOOLS
 
 log = logging.getLogger("statehub.simworld")
 

@@ -41,6 +41,7 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.tracker_feed import DEFAULT_PORT, VERSION
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +78,7 @@ def parse_frame(line: bytes) -> list[tuple[float, float]]:
         obj = json.loads(line)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"not JSON: {exc}") from exc
-    if not isinstance(obj, dict) or obj.get("v") != 1 or not isinstance(obj.get("people"), list):
+    if not isinstance(obj, dict) or obj.get("v") != VERSION or not isinstance(obj.get("people"), list):
         raise ValueError("not a version-1 tracker frame")
     people = []
     for person in obj["people"]:
@@ -94,7 +95,7 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
         resource: str = "cam",
         *,
         host: str,
-        port: int = 7001,
+        port: int = DEFAULT_PORT,
         zones: Mapping[str, Sequence[Sequence[float]]],
         stale_after: float = 0.5,
         backoff: Backoff | None = None,
@@ -205,7 +206,7 @@ Rectangle = Annotated[list[float], msgspec.Meta(min_length=4, max_length=4)]  # 
 
 class CameraParams(DriverParams, frozen=True, kw_only=True):
     host: str
-    port: Port = 7001
+    port: Port = DEFAULT_PORT
     zones: dict[str, list[Rectangle]]
     stale_after: Positive = 0.5
 

@@ -25,8 +25,9 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.modbus_io import Address, ModbusLink, ModbusParams
 from hubs.drivers.reconnect import Backoff, LinkedDriver
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.coupler import DEVICE_ID, DI_DOCK, TOOLS
 
-SLOTS = ("nutrunner_home_m", "lift_tool_home_m", "filter_tool_home_m")
+SLOTS = tuple(f"{tool}_home_m" for tool in TOOLS)  # slot n+1 is the home of the n-th tool
 
 
 class DockModbus(LinkedDriver[ModbusLink]):
@@ -36,8 +37,8 @@ class DockModbus(LinkedDriver[ModbusLink]):
         *,
         host: str,
         port: int = 502,
-        device_id: int = 1,
-        di_base: int = 8,
+        device_id: int = DEVICE_ID,
+        di_base: int = DI_DOCK,
         timeout: float = 1.0,
         backoff: Backoff | None = None,
     ) -> None:
@@ -77,7 +78,7 @@ class DockModbus(LinkedDriver[ModbusLink]):
 
 
 class DockParams(ModbusParams, frozen=True, kw_only=True):
-    di_base: Address = 8  # after the tool changer's inputs on a shared coupler
+    di_base: Address = DI_DOCK  # after the tool changer's inputs on a shared coupler
 
 
 def build(resource: str, params: DockParams) -> DockModbus:

@@ -1,23 +1,7 @@
 """Lifting system on CAN (python-can; ``socketcan`` on the Pi, ``virtual`` in sim mode).
 
-Frame map (11-bit identifiers, CANopen-style COB-IDs around the lift's node id
-``N``, default 0x10; multi-byte values little-endian):
-
-===========  ===========  ===  ====================================================
-COB-ID       direction    DLC  payload
-===========  ===========  ===  ====================================================
-0x200 + N    hub → lift   2    byte 0 command: 0 stop, 1 move up, 2 move down;
-                                byte 1 sequence counter (mod 256)
-0x180 + N    lift → hub   6    bytes 0-1 position, mm (uint16);
-             every 20 ms        byte 2 flags: bit 0 upper limit switch, bit 1 lower
-                                limit switch, bit 2 moving up, bit 3 moving down,
-                                bit 7 fault;
-                                byte 3 fault code (0 none);
-                                byte 4 last command received, byte 5 its sequence
-                                (the read-back of the hub's output)
-0x700 + N    lift → hub   1    NMT heartbeat: 0x00 boot-up, 0x05 operational,
-             every 100 ms       0x7F pre-operational
-===========  ===========  ===  ====================================================
+Frame map: ``hubs.protocols.lift_can`` (command 0x200 + N, status 0x180 + N every
+20 ms, NMT heartbeat 0x700 + N every 100 ms, around the lift's node id N, default 0x10).
 
 The lift runs a command watchdog: with no command frame for 0.5 s it stops.  The
 driver therefore repeats the command in force every ``command_period`` (0.1 s).
@@ -57,14 +41,26 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import DriverParams, Positive
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.lift_can import (
+    CMD_DOWN,
+    CMD_STOP,
+    CMD_UP,
+    COB_COMMAND,
+    COB_HEARTBEAT,
+    COB_STATUS,
+    DEFAULT_NODE,
+    FLAG_FAULT,
+    FLAG_LOWER,
+    FLAG_MOVING_DOWN,
+    FLAG_MOVING_UP,
+    FLAG_UPPER,
+    NMT_OPERATIONAL,
+    STATUS_FORMAT,
+)
 
 log = logging.getLogger(__name__)
 
-CMD_STOP, CMD_UP, CMD_DOWN = 0, 1, 2
 COMMANDS = {"up": CMD_UP, "down": CMD_DOWN}
-COB_COMMAND, COB_STATUS, COB_HEARTBEAT = 0x200, 0x180, 0x700
-NMT_BOOT, NMT_OPERATIONAL, NMT_PREOP = 0x00, 0x05, 0x7F
-FLAG_UPPER, FLAG_LOWER, FLAG_MOVING_UP, FLAG_MOVING_DOWN, FLAG_FAULT = 0x01, 0x02, 0x04, 0x08, 0x80
 
 BusFactory = Callable[[], can.BusABC]
 
@@ -86,7 +82,7 @@ class LiftStatus:
     def decode(cls, data: bytes | bytearray, received: float) -> LiftStatus:
         if len(data) < 6:
             raise ValueError(f"status frame too short ({len(data)} bytes)")
-        position, flags, code, echo, seq = struct.unpack_from("<HBBBB", data)
+        position, flags, code, echo, seq = struct.unpack_from(STATUS_FORMAT, data)
         return cls(
             position,
             bool(flags & FLAG_UPPER),
@@ -120,7 +116,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         self,
         resource: str = "lift",
         *,
-        node_id: int = 0x10,
+        node_id: int = DEFAULT_NODE,
         bus_factory: BusFactory,
         where: str = "can0",
         heartbeat_timeout: float = 0.35,
@@ -328,7 +324,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
 class LiftParams(DriverParams, frozen=True, kw_only=True):
     interface: str = "socketcan"  # python-can interface
     channel: str = "can0"
-    node_id: Annotated[int, msgspec.Meta(ge=1, le=0x7F)] = 0x10
+    node_id: Annotated[int, msgspec.Meta(ge=1, le=0x7F)] = DEFAULT_NODE
     bitrate: Annotated[int, msgspec.Meta(gt=0)] | None = None
     heartbeat_timeout: Positive = 0.35
     status_timeout: Positive = 0.1

@@ -37,9 +37,7 @@ Safe state: ``goto_c = none`` (the queue is aborted and the robot pauses where i
 from __future__ import annotations
 
 import asyncio
-import base64
 import contextlib
-import hashlib
 import logging
 import math
 import time
@@ -53,17 +51,11 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.mir_rest import API, EXECUTING, PAUSE, READY, auth_header
 
 log = logging.getLogger(__name__)
 
-API = "/api/v2.0.0"
-READY, PAUSE, EXECUTING = 3, 4, 5
 TARGETS = ("kitting", "station")
-
-
-def auth_header(username: str, password: str) -> str:
-    token = f"{username}:{hashlib.sha256(password.encode()).hexdigest()}"
-    return "Basic " + base64.b64encode(token.encode()).decode()
 
 
 class MirRest(LinkedDriver[ReconnectLogic]):

@@ -14,22 +14,8 @@ GPB2       input      tool *fail* (NOK)                           ``fail_m``
 ``inputs_active_low = true`` inverts the three inputs in the driver (open-collector
 opto outputs with pull-ups); the expander's IPOL registers are left at 0.
 
-MCP23017 register map, IOCON.BANK = 0 (the map this driver configures and uses):
-
-====  =======  ====  =======  ====  ========
-addr  reg      addr  reg      addr  reg
-====  =======  ====  =======  ====  ========
-0x00  IODIRA   0x08  INTCONA  0x10  INTCAPA
-0x01  IODIRB   0x09  INTCONB  0x11  INTCAPB
-0x02  IPOLA    0x0A  IOCON    0x12  GPIOA
-0x03  IPOLB    0x0B  IOCON    0x13  GPIOB
-0x04  GPINTENA 0x0C  GPPUA    0x14  OLATA
-0x05  GPINTENB 0x0D  GPPUB    0x15  OLATB
-0x06  DEFVALA  0x0E  INTFA
-0x07  DEFVALB  0x0F  INTFB
-====  =======  ====  =======  ====  ========
-
-IODIR bit 1 = input; GPIO reads pin levels; OLAT holds the output latches.
+Register map (IOCON.BANK = 0, the map this driver configures and uses):
+``hubs.protocols.mcp23017``.
 
 Protocol:
 
@@ -68,12 +54,10 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.params import DriverParams, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.mcp23017 import DEFAULT_ADDRESS, GPINTENB, GPIOA, IOCON, IODIRA, IPOLA, NREG, OLATA
 
 log = logging.getLogger(__name__)
 
-IODIRA, IPOLA, GPINTENB, IOCON = 0x00, 0x02, 0x05, 0x0A
-GPIOA, OLATA = 0x12, 0x14
-NREG = 0x16
 IOCON_VALUE = 0x00  # BANK=0, MIRROR=0, SEQOP=0 (sequential), DISSLW=0, ODR=0, INTPOL=0
 
 T = TypeVar("T")
@@ -326,7 +310,7 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
 
 class NutrunnerParams(DriverParams, frozen=True, kw_only=True):
     bus: Annotated[int, msgspec.Meta(ge=0)] = 1  # /dev/i2c-<bus>
-    address: Annotated[int, msgspec.Meta(ge=0x03, le=0x77)] = 0x20
+    address: Annotated[int, msgspec.Meta(ge=0x03, le=0x77)] = DEFAULT_ADDRESS
     run_pin: str = "A0"  # MCP23017 pins, A0..B7
     run_m_pin: str = "B0"
     tqr_m_pin: str = "B1"

@@ -36,10 +36,19 @@ from hubs.drivers.base import DeviceUnavailable, SelftestReport
 from hubs.drivers.modbus_io import Address, ModbusLink, ModbusParams
 from hubs.drivers.reconnect import Backoff, LinkedDriver
 from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.coupler import (
+    CHANGER_INPUTS,
+    DEVICE_ID,
+    DI_CODE0,
+    DI_CODE1,
+    DI_LOCKED,
+    DI_PRESENT,
+    DI_PRESSURE,
+    DI_UNLOCKED,
+    TOOLS,
+)
 
-TOOL_CODES = {0: "none", 1: "nutrunner", 2: "lift_tool", 3: "filter_tool"}
-LOCKED, UNLOCKED, PRESSURE, PRESENT, CODE0, CODE1 = range(6)
-N_INPUTS = 6
+TOOL_CODES = {0: "none", **{code: tool for code, tool in enumerate(TOOLS, start=1)}}
 
 
 class RspModbus(LinkedDriver[ModbusLink]):
@@ -49,7 +58,7 @@ class RspModbus(LinkedDriver[ModbusLink]):
         *,
         host: str,
         port: int = 502,
-        device_id: int = 1,
+        device_id: int = DEVICE_ID,
         coil_base: int = 0,
         di_base: int = 0,
         timeout: float = 1.0,
@@ -64,8 +73,8 @@ class RspModbus(LinkedDriver[ModbusLink]):
         )
 
     async def read(self) -> Mapping[str, Value]:
-        inputs = await self.link.read_discrete_inputs(self.di_base, N_INPUTS)
-        if inputs[LOCKED] and inputs[UNLOCKED]:
+        inputs = await self.link.read_discrete_inputs(self.di_base, CHANGER_INPUTS)
+        if inputs[DI_LOCKED] and inputs[DI_UNLOCKED]:
             raise DeviceUnavailable(f"{self.resource}: locked and unlocked sensors both on (sensor fault)")
         return self._decode(inputs)
 
@@ -119,11 +128,11 @@ class RspModbus(LinkedDriver[ModbusLink]):
 
     @staticmethod
     def _decode(inputs: list[bool]) -> dict[str, Value]:
-        code = int(inputs[CODE0]) | int(inputs[CODE1]) << 1
+        code = int(inputs[DI_CODE0]) | int(inputs[DI_CODE1]) << 1
         return {
-            "locked_m": inputs[LOCKED],
-            "tool_m": TOOL_CODES[code] if inputs[PRESENT] else "none",
-            "pressure_ok_m": inputs[PRESSURE],
+            "locked_m": inputs[DI_LOCKED],
+            "tool_m": TOOL_CODES[code] if inputs[DI_PRESENT] else "none",
+            "pressure_ok_m": inputs[DI_PRESSURE],
         }
 
     async def _drive(self, lock: bool, *, connecting: bool = False) -> None:
@@ -137,7 +146,7 @@ class RspModbus(LinkedDriver[ModbusLink]):
             )
 
     async def _on_connect(self, link: ModbusLink) -> None:
-        await link.read_discrete_inputs(self.di_base, N_INPUTS, connecting=True)
+        await link.read_discrete_inputs(self.di_base, CHANGER_INPUTS, connecting=True)
         if self._desired_lock is not None:
             # The coupler answers; a read-back problem shows on the next write and in the selftest.
             with contextlib.suppress(DeviceUnavailable):

@@ -31,6 +31,7 @@ import sys
 import time
 from typing import Any
 
+from hubs.protocols.tracker_feed import DEFAULT_PORT, VERSION
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
 
 
@@ -59,7 +60,8 @@ class CameraTrackerSim:
     def frame(self) -> bytes:
         self.seq += 1
         people = [{"id": i, "x": round(x, 3), "y": round(y, 3)} for i, (x, y) in sorted(self.people.items())]
-        return (json.dumps({"v": 1, "seq": self.seq, "t": round(time.time(), 3), "people": people}) + "\n").encode()
+        frame = {"v": VERSION, "seq": self.seq, "t": round(time.time(), 3), "people": people}
+        return (json.dumps(frame) + "\n").encode()
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._writers.add(writer)
@@ -167,13 +169,13 @@ def _server(device: SimulatedDevice) -> SimServer:
 
 
 PLUGIN = SimulatorPlugin("camera tracker feed", server=_server,
-                         defaults={"host": "127.0.0.1", "port": 7001, "zones": SIM_ZONES})
+                         defaults={"host": "127.0.0.1", "port": DEFAULT_PORT, "zones": SIM_ZONES})
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Simulated safety-camera tracker feed (TCP JSON lines)")
     parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=7001, help="TCP port (0: any free port)")
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port (0: any free port)")
     parser.add_argument("--rate", type=float, default=20.0, help="frames per second")
     parser.add_argument(
         "--walk",

@@ -46,16 +46,25 @@ import msgspec
 from hubs.drivers import nutrunner_mcp23017 as driver
 from hubs.drivers.base import Driver
 from hubs.drivers.params import NonNegative
+from hubs.protocols.mcp23017 import (
+    GPIOA,
+    GPIOB,
+    GPPUA,
+    INTCAPA,
+    INTCAPB,
+    INTFA,
+    INTFB,
+    IOCON,
+    IOCON_ALT,
+    IOCON_BANK,
+    IOCON_SEQOP,
+    IODIRA,
+    IODIRB,
+    IPOLA,
+    NREG,
+    OLATA,
+)
 from hubs.sim.registry import InHubSimulator, SimulatedDevice, SimulatorPlugin
-
-# BANK=0 register addresses (the map the driver uses).
-IODIRA, IODIRB, IPOLA, IPOLB = 0x00, 0x01, 0x02, 0x03
-GPINTENA, GPINTENB, DEFVALA, DEFVALB = 0x04, 0x05, 0x06, 0x07
-INTCONA, INTCONB, IOCON, IOCON_ALT = 0x08, 0x09, 0x0A, 0x0B
-GPPUA, GPPUB, INTFA, INTFB = 0x0C, 0x0D, 0x0E, 0x0F
-INTCAPA, INTCAPB, GPIOA, GPIOB, OLATA, OLATB = 0x10, 0x11, 0x12, 0x13, 0x14, 0x15
-NREG = 0x16
-IOCON_BANK, IOCON_MIRROR, IOCON_SEQOP = 0x80, 0x40, 0x20
 
 Clock = Callable[[], float]
 

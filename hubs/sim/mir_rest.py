@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import base64
 import contextlib
-import hashlib
 import math
 import sys
 import time
@@ -38,23 +36,15 @@ from typing import Any
 
 from aiohttp import web
 
+from hubs.protocols.mir_rest import API, EMERGENCY_STOP, EXECUTING, PAUSE, READY, STATE_TEXT, auth_header
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
 
-API = "/api/v2.0.0"
-READY, PAUSE, EXECUTING, EMERGENCY_STOP = 3, 4, 5, 10
-STATE_TEXT = {3: "Ready", 4: "Pause", 5: "Executing", 10: "EmergencyStop"}
 KITTING_MISSION, KITTING_POSITION = "b9f4a0c2-5d1e-4a7e-9d3b-0c1a2b3c4d01", (2.0, 10.0)
 STATION_MISSION, STATION_POSITION = "b9f4a0c2-5d1e-4a7e-9d3b-0c1a2b3c4d02", (20.0, 10.0)
 DEFAULT_MISSIONS = {
     KITTING_MISSION: ("Go to kitting", KITTING_POSITION),
     STATION_MISSION: ("Go to station", STATION_POSITION),
 }
-
-
-def auth_header(username: str, password: str) -> str:
-    """The header value the MiR expects: Basic base64(user:sha256hex(password))."""
-    token = f"{username}:{hashlib.sha256(password.encode()).hexdigest()}"
-    return "Basic " + base64.b64encode(token.encode()).decode()
 
 
 @dataclass

@@ -28,24 +28,16 @@ import time
 import tty
 from pathlib import Path
 
+from hubs.protocols.em4100 import ETX, STX, TAG_CHARS, checksum
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module
-
-STX, ETX = b"\x02", b"\x03"
-
-
-def checksum(tag: str) -> int:
-    value = 0
-    for byte in bytes.fromhex(tag):
-        value ^= byte
-    return value
 
 
 def frame(tag: str, *, corrupt: bool = False) -> bytes:
     tag = tag.upper()
-    if len(tag) != 10:
-        raise ValueError("an EM4100 tag is 10 hex characters")
-    check = checksum(tag) ^ (0x5A if corrupt else 0)
-    return STX + f"{tag}{check:02X}".encode("ascii") + b"\r\n" + ETX
+    if len(tag) != TAG_CHARS:
+        raise ValueError(f"an EM4100 tag is {TAG_CHARS} hex characters")
+    check = checksum(bytes.fromhex(tag)) ^ (0x5A if corrupt else 0)
+    return bytes([STX]) + f"{tag}{check:02X}".encode("ascii") + b"\r\n" + bytes([ETX])
 
 
 class RfidReaderSim:
