@@ -319,9 +319,11 @@ class NutrunnerParams(DriverParams, frozen=True, kw_only=True):
     io_timeout: Positive = 0.5
 
     def __post_init__(self) -> None:
-        for key in ("run_pin", "run_m_pin", "tqr_m_pin", "fail_m_pin"):
+        pins = {"run_pin": self.run_pin, "run_m_pin": self.run_m_pin, "tqr_m_pin": self.tqr_m_pin,
+                "fail_m_pin": self.fail_m_pin}
+        for key, pin in pins.items():
             try:
-                parse_pin(getattr(self, key))
+                parse_pin(pin)
             except ValueError as exc:
                 raise invalid(key, str(exc)) from None
 

@@ -46,6 +46,13 @@ class ParamError(ValueError):
         super().__init__(f"parameter {key!r}: {message}" if key else message)
 
 
+def require_strict(params_type: type[msgspec.Struct]) -> None:
+    """TypeError unless `params_type` rejects unknown keys (a misspelt parameter must not pass silently)."""
+    if not params_type.__struct_config__.forbid_unknown_fields:
+        raise TypeError(f"{params_type.__name__}: a driver's parameter Struct must be declared with "
+                        f"forbid_unknown_fields=True (or derive from DriverParams)")
+
+
 def invalid(key: str, message: str) -> ValueError:
     """For a Struct's `__post_init__`: an error that `convert_params` reports under `key`."""
     return ValueError(f"{message} - at `$.{key}`")

@@ -22,6 +22,7 @@ import msgspec
 from hubs.plugins import PluginTable
 
 from .base import Driver
+from .params import require_strict
 
 ENTRY_POINT_GROUP = "statehub.drivers"
 
@@ -32,9 +33,7 @@ class DriverPlugin:
     build: Callable[[str, Any], Driver]  # (resource name, params instance) -> Driver
 
     def __post_init__(self) -> None:
-        if not getattr(self.params.__struct_config__, "forbid_unknown_fields", False):
-            raise TypeError(f"{self.params.__name__}: a driver's parameter Struct must be declared with "
-                            f"forbid_unknown_fields=True (a misspelt parameter is an error, not a default)")
+        require_strict(self.params)
 
 
 _TABLE: PluginTable[DriverPlugin] = PluginTable(ENTRY_POINT_GROUP, DriverPlugin, {

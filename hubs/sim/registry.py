@@ -34,6 +34,7 @@ from typing import Any
 import msgspec
 
 from hubs.drivers.base import Driver
+from hubs.drivers.params import require_strict
 from hubs.plugins import PluginTable
 
 ENTRY_POINT_GROUP = "statehub.simulators"
@@ -73,6 +74,9 @@ class InHubSimulator:
     params: type[msgspec.Struct]  # the driver's parameters plus the simulator's own (forbid_unknown_fields)
     build: Callable[[str, Any], Driver]  # starts the simulator, returns the driver wired to it
     world_params: Callable[[SimulatedDevice], Mapping[str, Any]] = lambda device: {}  # what the sim world sends
+
+    def __post_init__(self) -> None:
+        require_strict(self.params)
 
 
 @dataclass(frozen=True)
