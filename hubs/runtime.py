@@ -19,6 +19,7 @@ import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import msgspec
 
@@ -177,7 +178,15 @@ class HubRuntime:
             slot.status, slot.detail = HubStatus.ERROR, f"safe state failed: {exc}"
             return
         if slot.mirror is not None and applied:
-            slot.mirror = msgspec.structs.replace(slot.mirror, **applied)
+            mirror: Any = slot.mirror
+            try:  # checked like a command: a driver's slip must not put a value outside its domain on the wire
+                slot.mirror = slot.codec.command({**slot.codec.values(mirror), **applied}, seq=mirror.seq,
+                                                 controller=mirror.controller, time=mirror.time)
+            except MessageError as exc:
+                log.error("hub %s: the safe state of %s applied what is no command: %s", self.hub, slot.name, exc)
+                slot.in_safe_state = True  # it did stop; only its report is wrong
+                slot.status, slot.detail = HubStatus.ERROR, f"safe state: {exc}"
+                return
         slot.in_safe_state = True
         slot.status, slot.detail = status, detail
 

@@ -216,3 +216,21 @@ async def test_a_driver_that_declares_inputs_observes_them() -> None:
             await asyncio.sleep(0.01)
     assert follower.observed == {"rsp.locked_m": True}
 
+
+
+class Sloppy(RecordingDriver):
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        self.output = False
+        return {"run_c": "off"}  # run_c is a bool
+
+
+async def test_a_safe_state_outside_the_domain_is_an_error_not_a_mirror() -> None:
+    sloppy = Sloppy("nr", "run_c", "run_m", {})
+    async with Hub({"nr": sloppy}) as hub:
+        hub.command("nr", 1, run_c=True)
+        await hub.state_where("nr", lambda s: s.mirror is not None and s.mirror.seq == 1)
+        failed = await hub.state_where("nr", lambda s: s.status == HubStatus.ERROR)
+        assert "safe state" in failed.detail and "outside its domain" in failed.detail
+        assert failed.mirror.run_c is True  # the last command, not the driver's slip
+        hub.command("nr", 2, run_c=True)
+        assert (await hub.state_where("nr", lambda s: s.mirror.seq == 2)).status == HubStatus.OK
