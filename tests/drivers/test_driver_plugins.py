@@ -202,3 +202,14 @@ async def test_the_sim_world_starts_a_plugin_simulator_without_knowing_its_type(
         assert driver.params.host == "127.0.0.1"  # type: ignore[attr-defined]
     assert not world.processes["gripper-grip"].running
 
+
+
+def test_config_check_reports_a_bad_parameter(installed: Path, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from deploy.cli import main
+
+    path = station(tmp_path, "real", "grip_force = true\n")
+    assert main(["config", "check", "--config", str(path)]) == 1
+    line = path.read_text().splitlines().index("grip_force = true") + 1
+    assert f"{path}:{line}: hubs.cell.devices.grip.grip_force: Expected `float`, got `bool`" in capsys.readouterr().err
+    assert main(["config", "check", "--config", str(station(tmp_path, "real"))]) == 0
