@@ -35,19 +35,19 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     [hubs.pi-tool.devices.nr]    # one table per resource the hub serves; the table name is the
     type = "nutrunner"           # resource name in the station model; type: its device type (below)
     mode = "emulate"             # "emulate" (model effects) | "sim" (driver against a simulator) | "real"
-    i2c_bus = 1                  # anything else: driver parameters, handed to the driver as is
+    bus = 1                      # anything else: driver parameters, checked by the type's driver
 
-Device types: the standard ones (`DEVICE_TYPES`, common/resources) have built-in drivers
-or are emulated anyway; a station may bring its own (a CNC door, a conveyor), which run
-in `emulate` mode from the station model alone. Such a type in `sim` or `real` mode is an
-error here, at load time, rather than a hub that fails when it starts.
+Device types: any. A device runs in `emulate` mode from the station model alone, whatever
+its type; in `sim` or `real` mode its type needs a driver and its parameters must suit it,
+which hubs/ checks (`hubs.factory.check_devices`: `hubctl config check`, `up`, `hub`), since
+drivers are found in hubs/ (built in, or installed plugins).
 
 Checks (all problems are reported at once, each as `file:line: key: message`):
 unknown keys, wrong types and out-of-range numbers, missing keys, duplicate hubs
-(a TOML error), a resource served by two hubs, unknown device mode, a device type
-of the station's own outside `emulate` mode, names that cannot be key chunks. With
-the station model (`load_station`, or `check_against_model`): a device whose resource
-the model lacks, a model resource no hub serves, a device type differing from the model's.
+(a TOML error), a resource served by two hubs, unknown device mode, names that cannot
+be key chunks. With the station model (`load_station`, or `check_against_model`): a
+device whose resource the model lacks, a model resource no hub serves, a device type
+differing from the model's.
 """
 
 from __future__ import annotations
@@ -61,6 +61,7 @@ from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 
+from common.keylines import KeyLines
 from common.model import Model
 from common.stations import ModelLoadError, load_model
 
@@ -211,77 +212,6 @@ class ConfigError(ValueError):
     @property
     def key(self) -> str:
         return self.problems[0].key
-
-
-# --- where a key is written ----------------------------------------------------------------
-
-_KEY_PART = r'(?:[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|\'[^\']*\')'
-_DOTTED_KEY = rf"{_KEY_PART}(?:\s*\.\s*{_KEY_PART})*"
-_HEADER = re.compile(rf"^\s*\[\[?\s*({_DOTTED_KEY})\s*\]\]?\s*(?:#.*)?$")
-_ASSIGN = re.compile(rf"^\s*({_DOTTED_KEY})\s*=")
-_INLINE_ASSIGN = re.compile(rf"[{{,]\s*({_DOTTED_KEY})\s*=")
-_STRING = re.compile(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'')
-
-
-def _split_key(text: str) -> tuple[str, ...]:
-    parts = re.findall(_KEY_PART, text)
-    return tuple(p[1:-1] if p[:1] in "\"'" else p for p in parts)
-
-
-class KeyLines:
-    """Line numbers of the keys and tables in TOML text (tomllib does not keep them).
-
-    A line-based scan: good for the files people write (tables, `key = value`,
-    inline tables on one line, multi-line arrays and strings)."""
-
-    def __init__(self, text: str) -> None:
-        self._explicit: dict[tuple[str, ...], int] = {}
-        self._implicit: dict[tuple[str, ...], int] = {}
-        table: tuple[str, ...] = ()
-        in_multiline: str | None = None
-        depth = 0  # open brackets of a multi-line array
-        for number, line in enumerate(text.splitlines(), start=1):
-            if in_multiline is not None:
-                if line.count(in_multiline) % 2 == 1:
-                    in_multiline = None
-                continue
-            if depth > 0:
-                code = _STRING.sub('""', line).split("#", 1)[0]
-                depth += code.count("[") - code.count("]")
-                continue
-            header = _HEADER.match(line)
-            if header:
-                table = _split_key(header.group(1))
-                self._record(table, number)
-                continue
-            assign = _ASSIGN.match(line)
-            if not assign:
-                continue
-            path = table + _split_key(assign.group(1))
-            self._record(path, number)
-            rest = line[assign.end():]
-            for inner in _INLINE_ASSIGN.finditer(rest):
-                self._explicit.setdefault(path + _split_key(inner.group(1)), number)
-            for quote in ('"""', "'''"):
-                if rest.count(quote) % 2 == 1:
-                    in_multiline = quote
-            code = _STRING.sub('""', rest).split("#", 1)[0]  # brackets inside strings do not count
-            depth = max(0, code.count("[") - code.count("]"))
-
-    def _record(self, path: tuple[str, ...], number: int) -> None:
-        self._explicit.setdefault(path, number)
-        for i in range(1, len(path)):
-            self._implicit.setdefault(path[:i], number)
-
-    def line_of(self, path: Iterable[str]) -> int | None:
-        """The line of `path`, or of its longest written prefix."""
-        path = tuple(path)
-        while path:
-            line = self._explicit.get(path) or self._implicit.get(path)
-            if line:
-                return line
-            path = path[:-1]
-        return None
 
 
 # --- loading -------------------------------------------------------------------------------
@@ -444,12 +374,6 @@ def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str
             served[resource] = name
         device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource}, free=True)
         if device is not None:
-            if device.type not in DEVICE_TYPES and device.mode != "emulate":
-                # Only the model's effects can stand in for a device statehub has no driver for.
-                checker.problem((*dpath, "type"), f"unknown device type {device.type!r} in hub {name!r}: statehub "
-                                                  f"has no driver for it, so it runs only in mode 'emulate' (from "
-                                                  f"the station model), not {device.mode!r}; built-in types: "
-                                                  f"{', '.join(DEVICE_TYPES)}")
             devices[resource] = device
     return checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))
 

@@ -118,9 +118,14 @@ def cmd_up(args: argparse.Namespace) -> int:
         config = args.config or DEFAULT_CONFIG
         if not Path(config).is_file():
             return _fail(f"{config}: no such file (--config)")
+        from hubs.factory import check_devices
+
+        station = load_config(config)
+        # A device without driver, or a bad parameter, stops here (the sim world adds simulator addresses).
+        check_devices(station, mode=args.mode, world=args.mode == "sim")
         if args.model is not None:
             # Every process loads the model its hubs.toml names: one given here could not reach them.
-            named = load_config(config).station.model
+            named = station.station.model
             if args.model != named:
                 return _fail(f"--model {args.model}: `up` runs the model {config} names ({named}); give the model "
                              f"in that file's [station] model, or use --in-process")

@@ -1,11 +1,21 @@
-"""Build the drivers of one hub from hubs.toml: emulated from the model, or the real driver (sim/real).
+"""Build the drivers of one hub from hubs.toml: emulated from the model, or a driver plugin (sim/real).
 
 Emulated devices read two optional parameters: `delay` (seconds an effect takes at
 speed 1) and `failure_probability` (of the alternative outcomes, e.g. a nutrunner fail).
+A device in `sim` or `real` mode is built by its type's driver (`hubs.drivers.registry`):
+its hubs.toml table, less `type`, `mode` and those two, converted into the driver's
+parameter Struct (so a device table may hold both, and switching modes needs no edit).
+In `sim` mode the type's simulator (`hubs.sim.registry`) fills in the address of a
+simulator at its defaults, or builds the driver wired to a simulator inside the hub
+(I2C, CAN).
 
 `overrides` (`hubctl hub --params-file`) are merged into a device's parameters, key by
 key: how the simulated world of `hubctl up --mode sim` hands each hub its simulators'
 addresses, and how a commissioning engineer tries a parameter without editing hubs.toml.
+
+`check_devices` reports, each with file, line and key, every device in sim or real mode
+whose type has no driver, and every parameter its driver does not accept: `hubctl config
+check`, `hubctl up` and `hubctl hub` call it before anything starts.
 """
 
 from __future__ import annotations
@@ -13,31 +23,148 @@ from __future__ import annotations
 import json
 import tomllib
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from common.config import StationConfig
+import msgspec
+
+from common.config import ConfigError, ConfigProblem, KeyLines, StationConfig
 from common.model import Model
 
 from .drivers.base import Driver
 from .drivers.emulated import EmulatedDriver
+from .drivers.params import ParamError, convert_params
+from .drivers.registry import ENTRY_POINT_GROUP, builtin_driver_types, find_driver
+from .plugins import PluginError
+from .sim.registry import find_simulator
 
 Overrides = Mapping[str, Mapping[str, Any]]  # resource -> parameter -> value
+MODES = ("sim", "real")
+EMULATION_PARAMS = ("delay", "failure_probability")  # the emulated device's, never a driver's
+
+
+class NoDriver(LookupError):
+    def __init__(self, device_type: str) -> None:
+        self.device_type = device_type
+        super().__init__(f"no driver for device type {device_type!r}: none is built in "
+                         f"({', '.join(builtin_driver_types())}) and no installed package provides one under the "
+                         f"entry-point group {ENTRY_POINT_GROUP!r}")
 
 
 def effective_mode(device_type: str, configured: str, override: str | None) -> str:
-    """The mode a device runs in. `--mode sim` leaves the devices with no protocol simulator
+    """The mode a device runs in. `--mode sim` leaves the devices whose type has no simulator
     (the operator, the AGV) emulated; a device configured `sim` in hubs.toml is not helped."""
     if override is None:
         return configured
-    if override == "sim":
-        from .drivers import device_types
-
-        if device_type not in device_types():
-            return "emulate"
+    if override == "sim" and find_simulator(device_type) is None:
+        return "emulate"
     return override
 
+
+@dataclass(frozen=True)
+class DriverSpec:
+    """How to build one device's driver: the builder and its checked parameters."""
+
+    build: Callable[[str, Any], Driver]
+    params: msgspec.Struct
+
+
+def resolve(device_type: str, mode: str, raw: Mapping[str, Any]) -> DriverSpec:
+    """The builder and typed parameters of a device in sim or real mode. Raises NoDriver,
+    ParamError (naming the parameter) or PluginError (a plugin that does not load)."""
+    plugin = find_driver(device_type)
+    if plugin is None:
+        raise NoDriver(device_type)
+    build, params_type = plugin.build, plugin.params
+    raw = {key: value for key, value in raw.items() if key not in EMULATION_PARAMS}
+    simulator = find_simulator(device_type) if mode == "sim" else None
+    if simulator is not None:
+        raw = {**simulator.defaults, **raw}
+        if simulator.in_hub is not None:
+            build, params_type = simulator.in_hub.build, simulator.in_hub.params
+    return DriverSpec(build, convert_params(params_type, raw))
+
+
+def make_driver(resource: str, device_type: str, mode: str, params: Mapping[str, Any] | None = None) -> Driver:
+    """The driver of one resource in sim or real mode. Raises ValueError naming what is wrong."""
+    if mode == "emulate":
+        raise ValueError(f"resource {resource!r}: mode 'emulate' is built from the resource model "
+                         "(build_drivers, hubs.drivers.emulated), not by make_driver")
+    if mode not in MODES:
+        raise ValueError(f"resource {resource!r}: unknown mode {mode!r}; expected one of sim, real, emulate")
+    where = f"resource {resource!r} ({device_type}, {mode})"
+    try:
+        spec = resolve(device_type, mode, params or {})
+        return spec.build(resource, spec.params)
+    except (NoDriver, PluginError) as exc:
+        raise ValueError(f"{where}: {exc}") from exc
+    except ParamError as exc:
+        raise ValueError(f"{where}: bad parameters: {exc}") from exc
+    except (KeyError, TypeError, ValueError) as exc:  # the driver refused what its Struct accepted
+        raise ValueError(f"{where}: bad parameters: {exc}") from exc
+
+
+# --- checking every device before anything starts ----------------------------------------------
+
+def device_problems(config: StationConfig, *, hub: str | None = None, mode: str | None = None,
+                    overrides: Overrides | None = None, world: bool = False) -> list[ConfigProblem]:
+    """Devices (of `hub`, or of every hub) in sim or real mode whose type has no driver, or whose
+    parameters their driver does not accept; each with file, line and key. `world`: a sim world
+    will supply the parameters of the devices it runs a simulator process for (their address,
+    the robot's poses), so those may be missing here."""
+    path = Path(config.path)
+    lines = KeyLines(path.read_text(encoding="utf-8")) if path.is_file() else None
+    overrides = overrides or {}
+    problems = []
+    for hub_config in config.hubs.values():
+        if hub is not None and hub_config.name != hub:
+            continue
+        for resource, device in hub_config.devices.items():
+            table = ("hubs", hub_config.name, "devices", resource)
+            extra = overrides.get(resource, {})
+            chosen = device.mode
+            try:
+                chosen = effective_mode(device.type, device.mode, mode)
+                if chosen != "emulate":
+                    resolve(device.type, chosen, {**device.params, **extra})
+                continue
+            except NoDriver as exc:
+                key, message = (*table, "type"), _no_driver(exc, hub_config.name, device.mode, chosen)
+            except PluginError as exc:
+                key, message = (*table, "type"), str(exc)
+            except ParamError as exc:
+                if world and exc.missing and _world_supplies(device.type, chosen):
+                    continue
+                key = (*table, *exc.key.split(".")) if exc.key else table
+                origin = " (from the parameter overrides)" if exc.key and exc.key.split(".")[0] in extra else ""
+                message = f"{exc.message}{origin} [{device.type} driver, {chosen} mode]"
+            line = (lines.line_of(key) if lines else None) or device.line or None
+            problems.append(ConfigProblem(config.path, line, ".".join(key), message))
+    return problems
+
+
+def _world_supplies(device_type: str, mode: str) -> bool:
+    simulator = find_simulator(device_type) if mode == "sim" else None
+    return simulator is not None and simulator.server is not None
+
+
+def _no_driver(exc: NoDriver, hub: str, configured: str, chosen: str) -> str:
+    how = f"mode {chosen!r}" if configured == chosen else f"mode {chosen!r} (--mode {chosen})"
+    return (f"{exc} (device in hub {hub!r}, {how}); install the package that provides it, or run the device in "
+            f"mode 'emulate' (from the station model)")
+
+
+def check_devices(config: StationConfig, *, hub: str | None = None, mode: str | None = None,
+                  overrides: Overrides | None = None, world: bool = False) -> None:
+    """Raise ConfigError listing every problem `device_problems` finds."""
+    problems = device_problems(config, hub=hub, mode=mode, overrides=overrides, world=world)
+    if problems:
+        raise ConfigError(problems)
+
+
+# --- parameter overrides -----------------------------------------------------------------------
 
 def load_overrides(path: str | Path) -> dict[str, dict[str, Any]]:
     """A parameter-override file: JSON, or TOML when it ends in `.toml`; `{resource: {key: value}}`.
@@ -72,15 +199,19 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
                              f"(use --mode)")
 
 
+# --- the drivers of one hub --------------------------------------------------------------------
+
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
                   mode: str | None = None, failure: dict[str, float] | None = None,
                   overrides: Overrides | None = None) -> dict[str, Driver]:
     """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`); `failure` overrides the
-    failure probability of emulated resources; `overrides` are merged into the devices' parameters."""
+    failure probability of emulated resources; `overrides` are merged into the devices' parameters.
+    Raises ConfigError (file, line, key) for a device without driver or with a bad parameter."""
     if hub not in config.hubs:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     overrides = overrides or {}
     check_overrides(config, hub, overrides)
+    check_devices(config, hub=hub, mode=mode, overrides=overrides)
     drivers: dict[str, Driver] = {}
     for resource, device in config.hubs[hub].devices.items():
         chosen = effective_mode(device.type, device.mode, mode)
@@ -95,7 +226,5 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
                 delay=float(params["delay"]) if "delay" in params else None,
             )
         else:
-            from .drivers import make_driver
-
             drivers[resource] = make_driver(resource, device.type, chosen, params)
     return drivers

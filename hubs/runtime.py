@@ -3,10 +3,12 @@
 A hub serves the resources of one ECU. For each one it applies the newest valid
 command and mirrors it, publishes the measured state at its rate and at once when a
 command is applied, rejects commands outside the model's domains (and says so in its
-status), drives the driver's safe state when no command arrived within the command
-timeout, and reports a device that does not answer. It keeps no control state: a
-restarted hub starts in the safe state and takes the next command the controller
-re-sends. It never knows whether a driver is emulated, simulated or real.
+status), has the driver enter its safe state when no command arrived within the command
+timeout (and mirrors the command values the driver says it applied), and reports a
+device that does not answer. It keeps no control state: a restarted hub starts in the
+safe state and takes the next command the controller re-sends. It never knows whether
+a driver is emulated, simulated or real; a driver that needs other resources' values
+declares it (`Inputs`, `Observes`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import msgspec
 
@@ -25,7 +28,7 @@ from common.ctl import StateSnapshot
 from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 from common.model import Kind, Model, Value
 
-from .drivers.base import DeviceUnavailable, Driver, SelftestReport
+from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from .selftest import SelftestMessage, report_message
 
 log = logging.getLogger("statehub.hub")
@@ -162,12 +165,11 @@ class HubRuntime:
         return command.seq < mirror.seq  # type: ignore[attr-defined]
 
     async def _drive_safe_state(self, slot: ResourceSlot, status: HubStatus, detail: str) -> None:
-        # Only what the driver calls safe is written: re-writing the last command would restart
-        # a motion the driver just stopped, and the model's initial values could drop a tool.
-        safe = dict(slot.driver.safe_state())
+        # The driver stops and drives what it calls safe; nothing else is written (re-writing the last
+        # command would restart a motion the driver just stopped, the model's initial values could drop
+        # a tool). The mirror follows what it applied, so that it never claims a command still in force.
         try:
-            if safe:
-                await slot.driver.write(safe)
+            applied = await slot.driver.enter_safe_state()
         except DeviceUnavailable as exc:
             slot.device_problem = str(exc) or "device does not answer"
             return
@@ -175,6 +177,16 @@ class HubRuntime:
             log.exception("hub %s: could not drive the safe state of %s", self.hub, slot.name)
             slot.status, slot.detail = HubStatus.ERROR, f"safe state failed: {exc}"
             return
+        if slot.mirror is not None and applied:
+            mirror: Any = slot.mirror
+            try:  # checked like a command: a driver's slip must not put a value outside its domain on the wire
+                slot.mirror = slot.codec.command({**slot.codec.values(mirror), **applied}, seq=mirror.seq,
+                                                 controller=mirror.controller, time=mirror.time)
+            except MessageError as exc:
+                log.error("hub %s: the safe state of %s applied what is no command: %s", self.hub, slot.name, exc)
+                slot.in_safe_state = True  # it did stop; only its report is wrong
+                slot.status, slot.detail = HubStatus.ERROR, f"safe state: {exc}"
+                return
         slot.in_safe_state = True
         slot.status, slot.detail = status, detail
 
@@ -183,7 +195,9 @@ class HubRuntime:
         wanted: dict[str, set[str]] = {}
         estimated: set[str] = set()
         for slot in self.slots.values():
-            for path in getattr(slot.driver, "inputs", ()):
+            if not isinstance(slot.driver, Inputs):
+                continue
+            for path in slot.driver.inputs:
                 if self.model.var(path).kind is Kind.ESTIMATED:
                     estimated.add(path)  # the controller's (e.g. engine.frame_e): from its state snapshots
                 else:
@@ -206,10 +220,8 @@ class HubRuntime:
                 log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
                 continue
             values = {p: v for p, v in snapshot.values.items() if p in paths}
-            for slot in self.slots.values():
-                observe = getattr(slot.driver, "observe", None)
-                if observe is not None and values:
-                    observe(values)
+            if values:
+                self._observed(values)
 
     async def _follow(self, resource: str, codec: Codec, what: str) -> None:
         key = self.keys.state(resource) if what == "state" else self.keys.cmd(resource)
@@ -220,11 +232,12 @@ class HubRuntime:
             except MessageError as exc:
                 log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
                 continue
-            values = {p: v for p, v in codec.values(message, paths=True).items() if v is not None}
-            for slot in self.slots.values():
-                observe = getattr(slot.driver, "observe", None)
-                if observe is not None:
-                    observe(values)
+            self._observed({p: v for p, v in codec.values(message, paths=True).items() if v is not None})
+
+    def _observed(self, values: Mapping[str, Value]) -> None:
+        for slot in self.slots.values():
+            if isinstance(slot.driver, Observes):
+                slot.driver.observe(values)
 
     # --- state out ------------------------------------------------------------------------
     async def _publish_loop(self) -> None:

@@ -124,9 +124,6 @@ CASES = [
      'mode = "simulate"', "unknown mode 'simulate' (expected one of: emulate, sim, real)"),
     ("unknown network mode", 'mode = "peer"', 'mode = "router"', "network.mode", 'mode = "router"',
      "unknown mode 'router' (expected one of: peer, client)"),
-    # A type statehub has no driver for runs emulated only (tests/test_stations.py: accepted in emulate).
-    ("unknown device type in sim mode", 'type = "rfid"', 'type = "rfid-reader"', "hubs.rfidcam.devices.rfid.type",
-     "rfid-reader", "unknown device type 'rfid-reader' in hub 'rfidcam': statehub has no driver for it"),
     ("duplicate hub", "[hubs.rfidcam]\n", "[hubs.pi-tool]\n", "hubs.pi-tool", "[hubs.pi-tool]",
      "duplicate hub name 'pi-tool'"),
     ("resource in two hubs", "[hubs.rfidcam.devices.rfid]", "[hubs.rfidcam.devices.nr]",
@@ -235,12 +232,12 @@ real = 1
 def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: str) -> None:
     """Switching a device to real (or sim) needs no other edit: its driver's parameters are all there."""
     from common.config import load_station
-    from hubs.drivers import device_types
     from hubs.drivers.base import Driver
+    from hubs.drivers.registry import driver_types
     from hubs.factory import build_drivers
 
     config, model = load_station(REPO_FILE)
-    with_driver = [r for r, d in config.resources.items() if config.device(r).type in device_types()]
+    with_driver = [r for r, d in config.resources.items() if config.device(r).type in driver_types()]
     assert {config.device(r).type for r in with_driver} >= {"nutrunner", "lift", "rsp", "dock", "ur", "mir", "rfid",
                                                              "camera"}
     for hub in config.hubs:

@@ -29,10 +29,11 @@ from common.stations import engine_assembly as ea
 from deploy.local.simworld import SimWorld
 from deploy.local.station import Options, run_station
 from hubs.factory import build_drivers, load_overrides
+from hubs.protocols.coupler import TOOLS
 from hubs.sim.cell import Walker
-from hubs.sim.toolchanger_modbus import TOOLS, ToolChangerPhysics
+from hubs.sim.toolchanger_modbus import ToolChangerPhysics
 from hubs.sim.ur_poses import check_pose_table, pose_table
-from hubs.sim.ur_rtde_fake import HOME_Q
+from hubs.sim.ur_robot import HOME_Q
 from tests.sim_station.harness import ROOT, SimCell
 
 REFERENCE = ROOT / "hubs.toml"

@@ -1,30 +1,25 @@
 """The simulated world of `hubctl up --mode sim`: every device simulator the station needs, coupled.
 
 For each device that runs in `sim` mode (`--mode sim`, or `mode = "sim"` in hubs.toml)
-the world starts the simulator that speaks its protocol, as a process of its own where
-the simulator is a server, and tells the device's hub where it is:
+the world asks the simulator registry (`hubs.sim.registry`, built-in simulators and
+plugins of the entry-point group `statehub.simulators`) how to simulate its type:
 
-* rsp, dock: the Modbus TCP coupler with tool changer and dock (`hubs.sim.toolchanger_modbus`),
-  one process per changer, shared by its dock;
-* ur: the fake UR controller, RTDE + dashboard + command port (`hubs.sim.ur_rtde_fake`), a
-  process on a loopback address of its own, 127.0.N.2 (its ports are fixed);
-* mir: the MiR REST API (`hubs.sim.mir_rest`), a process;
-* camera: the tracker feed (`hubs.sim.camera_tracker --control`), a process fed the
-  operator's position;
-* rfid: the EM4100 reader on a pty (`hubs.sim.rfid_serial`), a process fed the badge;
-* nutrunner (MCP23017 on a simulated I2C bus) and lift (CAN on python-can `virtual`, which
-  only connects buses of one process): inside their hub process, started by the driver
-  factory (`hubs.drivers.make_driver`); the world only sends their simulation parameters.
+* a simulator *server* (Modbus coupler, fake UR controller, MiR REST API, tracker feed,
+  RFID reader on a pty, or a plugin's): the world starts the process, waits for the line
+  saying it serves, and hands the hub the driver parameters that point the device's
+  driver at it. Devices whose servers have the same name share one process (a dock
+  wired to its tool changer's coupler);
+* a simulator *inside the hub* (nutrunner on a simulated I2C bus, lift on python-can's
+  `virtual` bus, which only connects buses of one process): the hub starts it when it
+  builds the driver; the world only sends its simulation parameters.
 
-Devices with no protocol (the operator, the AGV) stay emulated. Each hub receives its
-devices' simulator addresses and simulation parameters as a parameter-override file
-(`hubctl hub --params-file`, `{resource: {parameter: value}}`), written to the world's
-run directory. The robot's named poses get deterministic joint targets
-(`hubs.sim.ur_poses`). Simulated time follows `--speed`: robot, MiR, lift, tool
-changer piston, nutrunner and the operator's walk are that much faster.
+Devices whose type has no simulator (the operator, the AGV) stay emulated. Each hub
+receives its devices' simulator addresses and simulation parameters as a
+parameter-override file (`hubctl hub --params-file`, `{resource: {parameter: value}}`),
+written to the world's run directory. Simulated time follows `--speed`.
 
-The simulators are coupled as the real cell couples the devices (`hubs.sim.cell`): the
-tool changer sees the robot's flange at a dock slot, the dock's sensors follow; and,
+The built-in simulators are coupled as the real cell couples the devices (`hubs.sim.cell`):
+the tool changer sees the robot's flange at a dock slot, the dock's sensors follow; and,
 with the station's bus (`loopback_port`), the camera sees the emulated operator walk
 to where the instruction sends them, the operator takes a tool out of the dock by hand
 for a hand-held task and badges in at the RFID reader when nobody is verified.
@@ -44,7 +39,6 @@ import logging
 import os
 import re
 import signal
-import socket
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -56,19 +50,17 @@ from common.bus import Bus, Keys, zenoh_config
 from common.config import DeviceConfig, StationConfig, load_station
 from common.messages import Codec
 from common.model import Model
-from hubs.drivers import SIM_CAMERA_ZONES
 from hubs.factory import effective_mode
-from hubs.sim import cell, mir_rest
-from hubs.sim.toolchanger_modbus import TOOLS
-from hubs.sim.ur_poses import driver_poses, pose_table
-from hubs.sim.ur_rtde_fake import COMMAND_PORT, DASHBOARD_PORT, RTDE_PORT
+from hubs.protocols.coupler import TOOLS
+from hubs.protocols.ur import COMMAND_PORT
+from hubs.sim import cell
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, find_simulator, host_port
+from hubs.sim.rfid_serial import OPERATOR_TAG
 
 log = logging.getLogger("statehub.simworld")
 
-OPERATOR_TAG = "5A0017C3E1"  # the simulated operator's badge
 READY_TIMEOUT_S = 20.0
 STOP_GRACE_S = 3.0
-UR_ADDRESSES = range(100, 200)  # 127.0.N.2; the driver tests use 127.0.0.2 and 127.P.0.10+
 Say = Callable[[str], object]
 
 
@@ -86,6 +78,7 @@ class SimProcess:
     log: Path
     ready: str  # regex of the line it prints once it serves; group 1, if any, is its address
     control: bool = False  # keep a pipe to its stdin for `send`
+    files: tuple[Path, ...] = ()  # removed when it stops (a pty link)
     process: asyncio.subprocess.Process | None = None
     address: str = ""
 
@@ -128,6 +121,14 @@ class SimProcess:
         await self.process.stdin.drain()
 
     async def stop(self) -> None:
+        try:
+            await self._end()
+        finally:
+            for path in self.files:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+
+    async def _end(self) -> None:
         process = self.process
         if process is None or process.returncode is not None:
             return
@@ -141,28 +142,6 @@ class SimProcess:
             with contextlib.suppress(ProcessLookupError):
                 process.kill()
             await process.wait()
-
-
-def _python(module: str, *args: str) -> list[str]:
-    return [sys.executable, "-m", module, *args]
-
-
-def free_robot_address(taken: set[str]) -> str:
-    """A loopback address where RTDE, dashboard and command port are free (the ports are fixed)."""
-    for n in UR_ADDRESSES:
-        host = f"127.0.{n}.2"
-        if host in taken:
-            continue
-        try:
-            for port in (RTDE_PORT, DASHBOARD_PORT, COMMAND_PORT):
-                with socket.socket() as s:
-                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                    s.bind((host, port))
-        except OSError:
-            continue
-        return host
-    raise SimulatorError(f"no free loopback address for a fake UR controller in 127.0.{UR_ADDRESSES[0]}-"
-                         f"{UR_ADDRESSES[-1]}.2 (ports {RTDE_PORT}, {DASHBOARD_PORT}, {COMMAND_PORT})")
 
 
 # --- the world ---------------------------------------------------------------------------------
@@ -179,11 +158,13 @@ class SimWorld:
     loopback_port: int | None = None  # the station's bus: couples the operator to camera, dock and RFID
     say: Say = print
     devices: dict[str, DeviceConfig] = field(default_factory=dict)  # resource -> device, sim devices only
+    simulators: dict[str, SimulatorPlugin] = field(default_factory=dict)  # resource -> its type's simulator
     emulated: list[str] = field(default_factory=list)  # devices that stay emulated in sim mode: no simulator
-    processes: dict[str, SimProcess] = field(default_factory=dict)
+    processes: dict[str, SimProcess] = field(default_factory=dict)  # simulator processes by name
+    server_of: dict[str, SimProcess] = field(default_factory=dict)  # resource -> its simulator process
+    in_hub: list[str] = field(default_factory=list)  # resources simulated inside their hub
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)  # resource -> parameters
     params_files: dict[str, Path] = field(default_factory=dict)  # hub -> override file
-    poses: dict[str, dict[str, tuple[float, ...]]] = field(default_factory=dict)  # robot -> pose -> joints
     _tasks: list[asyncio.Task[None]] = field(default_factory=list)
     _bus: Bus | None = None
     _log_handler: logging.Handler | None = None
@@ -194,6 +175,9 @@ class SimWorld:
                 chosen = effective_mode(device.type, device.mode, self.mode)
                 if chosen == "sim":
                     self.devices[resource] = device
+                    simulator = find_simulator(device.type)
+                    if simulator is not None:
+                        self.simulators[resource] = simulator
                 elif self.mode == "sim" and chosen == "emulate":
                     self.emulated.append(f"{resource} ({device.type})")
 
@@ -213,8 +197,7 @@ class SimWorld:
         log.addHandler(self._log_handler)
         log.setLevel(logging.INFO)
         try:
-            self._plan_in_process()
-            await self._start_servers()
+            await self._start_simulators()
             self._write_params()
             await self._couple()
         except BaseException:
@@ -235,9 +218,6 @@ class SimWorld:
                 await self._bus.close()
             self._bus = None
         await asyncio.gather(*(p.stop() for p in self.processes.values()))
-        for resource in self.of_type("rfid"):
-            with contextlib.suppress(OSError):
-                self._rfid_link(resource).unlink()
         if self._log_handler is not None:
             log.removeHandler(self._log_handler)
             self._log_handler.close()
@@ -254,116 +234,48 @@ class SimWorld:
         lines = [f"sim world: {len(self.processes)} simulator processes, logs and parameter files in {self.run_dir}/"]
         for process in self.processes.values():
             lines.append(f"  {process.what}: {process.address}")
-        for resource, device in self.of_type("nutrunner", "lift").items():
-            lines.append(f"  {resource} ({device.type}): simulated inside hub {self.config.hub_of(resource).name}")
+        for resource in self.in_hub:
+            lines.append(f"  {resource} ({self.devices[resource].type}): simulated inside hub "
+                         f"{self.config.hub_of(resource).name}")
+        for resource in sorted(set(self.devices) - set(self.simulators)):
+            lines.append(f"  {resource} ({self.devices[resource].type}): no simulator plugin, its hubs.toml "
+                         f"parameters must point at a simulator")
         if self.emulated:
             lines.append(f"  emulated (no protocol simulator): {', '.join(self.emulated)}")
         return lines
 
-    # --- planning the simulators -------------------------------------------------------------
-    def _set(self, resource: str, **params: Any) -> None:
+    # --- starting the simulators -------------------------------------------------------------
+    def _set(self, resource: str, params: Mapping[str, Any]) -> None:
         self.overrides.setdefault(resource, {}).update(params)
 
-    def _plan_in_process(self) -> None:
-        for resource in self.of_type("nutrunner"):
-            self._set(resource, sim_seed=self.seed, sim_fail_probability=float(self.failure.get(resource, 0.0)),
-                      sim_spinup=0.05 / self.speed, sim_tighten=0.25 / self.speed, sim_reset=0.02 / self.speed)
-        for resource in self.of_type("lift"):
-            self._set(resource, sim_speed=400.0 * self.speed)
-
-    def _changer_of(self, resource: str) -> str:
-        """The coupler a changer or dock is wired to: a dock shares its changer's when that is simulated."""
+    def _described(self, resource: str) -> SimulatedDevice:
         device = self.devices[resource]
-        if device.type == "dock":
-            changer = self.model.resource_by_name[resource].parameters.get("changer")
-            if changer in self.devices and self.devices[changer].type == "rsp":
-                return str(changer)
-        return resource
+        model = self.model.resource_by_name.get(resource)
+        return SimulatedDevice(resource, device.type, device.params, model.parameters if model else {}, self.run_dir,
+                               speed=self.speed, seed=self.seed,
+                               failure_probability=float(self.failure.get(resource, 0.0)))
 
-    async def _start_servers(self) -> None:
-        starts = []
-        for changer in sorted({self._changer_of(r) for r in self.of_type("rsp", "dock")}):
-            served = [r for r in self.of_type("rsp", "dock") if self._changer_of(r) == changer]
-            starts.append(self._server(
-                f"coupler-{changer}", f"Modbus coupler ({', '.join(served)})",
-                _python("hubs.sim.toolchanger_modbus", "--host", "127.0.0.1", "--port", "0",
-                        "--stroke-time", f"{max(0.05, 0.15 / self.speed):.4f}"),
-                r"listening on (\S+)", served, self._modbus_params))
-        for resource in self.of_type("mir"):
-            starts.append(self._server(
-                f"mir-{resource}", f"MiR REST API ({resource})",
-                _python("hubs.sim.mir_rest", "--host", "127.0.0.1", "--port", "0", "--speed", f"{self.speed:g}"),
-                r"listening on (\S+)", [resource], self._mir_params))
-        for resource in self.of_type("camera"):
-            starts.append(self._server(
-                f"camera-{resource}", f"camera tracker feed ({resource})",
-                _python("hubs.sim.camera_tracker", "--host", "127.0.0.1", "--port", "0", "--control"),
-                r"listening on (\S+)", [resource], self._camera_params, control=True))
-        for resource in self.of_type("rfid"):
-            starts.append(self._server(
-                f"rfid-{resource}", f"RFID reader ({resource})",
-                _python("hubs.sim.rfid_serial", "--link", str(self._rfid_link(resource))),
-                r"^(\S+)$", [resource], self._rfid_params, control=True))
-        for resource in self.of_type("ur"):
-            starts.append(self._robot(resource))
-        await asyncio.gather(*starts)
+    async def _start_simulators(self) -> None:
+        servers: dict[str, tuple[SimServer, str, list[str]]] = {}  # process name -> server, what, resources
+        for resource, simulator in self.simulators.items():
+            device = self._described(resource)
+            if simulator.in_hub is not None:
+                self._set(resource, simulator.in_hub.world_params(device))
+                self.in_hub.append(resource)
+            elif simulator.server is not None:
+                server = simulator.server(device)
+                name = server.name or f"{device.device_type}-{resource}"
+                servers.setdefault(name, (server, simulator.what, []))[2].append(resource)
+        await asyncio.gather(*(self._serve(name, *entry) for name, entry in servers.items()))
 
-    async def _server(self, name: str, what: str, argv: list[str], ready: str, resources: list[str],
-                      params: Callable[[str, str], dict[str, Any]], control: bool = False) -> None:
-        process = SimProcess(name, what, argv, self.run_dir / f"{name}.log", ready, control=control)
+    async def _serve(self, name: str, server: SimServer, what: str, resources: list[str]) -> None:
+        process = SimProcess(name, f"{what} ({', '.join(resources)})", list(server.argv),
+                             self.run_dir / f"{name}.log", server.ready, control=server.control, files=server.files)
         self.processes[name] = process
         address = await process.start()
         for resource in resources:
-            self._set(resource, **params(resource, address))
-
-    async def _robot(self, resource: str, attempts: int = 3) -> None:
-        spec = self.model.resource_by_name[resource].parameters
-        self.poses[resource] = pose_table(spec["poses"], spec["allowed_moves"], spec["home"])
-        taken = {p.address for p in self.processes.values()}
-        for attempt in range(attempts):
-            host = free_robot_address(taken)
-            process = SimProcess(f"ur-{resource}", f"fake UR controller ({resource})",
-                                 _python("hubs.sim.ur_rtde_fake", "--host", host), self.run_dir / f"ur-{resource}.log",
-                                 r"^ready (\S+)$")
-            self.processes[process.name] = process
-            try:
-                await process.start()
-                break
-            except SimulatorError:
-                taken.add(host)  # taken meanwhile by someone else
-                if attempt + 1 == attempts:
-                    raise
-        self._set(resource, host=process.address, motion_backend="sim", command_port=COMMAND_PORT,
-                  poses=driver_poses(self.poses[resource]), joint_speed=1.05 * self.speed)
-
-    @staticmethod
-    def _host_port(address: str) -> tuple[str, int]:
-        host, _, port = address.rpartition(":")
-        return host, int(port)
-
-    def _modbus_params(self, resource: str, address: str) -> dict[str, Any]:
-        host, port = self._host_port(address)
-        return {"host": host, "port": port, "device_id": 1}
-
-    def _mir_params(self, resource: str, address: str) -> dict[str, Any]:
-        host, port = self._host_port(address)
-        return {"host": host, "port": port, "username": "admin", "password": "admin",
-                "missions": {"kitting": mir_rest.KITTING_MISSION, "station": mir_rest.STATION_MISSION},
-                "positions": {"kitting": list(mir_rest.KITTING_POSITION),
-                              "station": list(mir_rest.STATION_POSITION)}}
-
-    def _zones(self, resource: str) -> dict[str, list[list[float]]]:
-        return dict(self.devices[resource].params.get("zones", SIM_CAMERA_ZONES))
-
-    def _camera_params(self, resource: str, address: str) -> dict[str, Any]:
-        host, port = self._host_port(address)
-        return {"host": host, "port": port, "zones": self._zones(resource)}
-
-    def _rfid_link(self, resource: str) -> Path:
-        return self.run_dir.resolve() / f"{resource}.tty"
-
-    def _rfid_params(self, resource: str, address: str) -> dict[str, Any]:
-        return {"serial_port": str(self._rfid_link(resource)), "operators": {OPERATOR_TAG: "simulated operator"}}
+            self.server_of[resource] = process
+            self._set(resource, server.driver_params(address))
 
     def _write_params(self) -> None:
         for hub in self.config.hubs.values():
@@ -373,24 +285,33 @@ class SimWorld:
                 path.write_text(json.dumps(mine, indent=2) + "\n", encoding="utf-8")
                 self.params_files[hub.name] = path
 
-    # --- coupling ----------------------------------------------------------------------------
+    # --- coupling the built-in simulators as the cell couples the devices ----------------------
     def _spawn(self, coroutine: Any, name: str) -> None:
         self._tasks.append(asyncio.create_task(coroutine, name=name))
 
+    def _served(self, *types: str) -> list[str]:
+        """The resources of these types that have a simulator process."""
+        return [r for r in self.of_type(*types) if r in self.server_of]
+
+    def _coupler(self, resource: str, links: dict[str, cell.CouplerLink]) -> cell.CouplerLink:
+        process = self.server_of[resource]
+        if process.name not in links:
+            links[process.name] = cell.CouplerLink(*host_port(process.address))
+        return links[process.name]
+
     async def _couple(self) -> None:
-        couplers: dict[str, cell.CouplerLink] = {}
-        for changer in {self._changer_of(r) for r in self.of_type("rsp", "dock")}:
-            host, port = self._host_port(self.processes[f"coupler-{changer}"].address)
-            couplers[changer] = cell.CouplerLink(host, port)
-        for changer, link in couplers.items():
+        couplers: dict[str, cell.CouplerLink] = {}  # by process: a changer and its dock share one
+        robots = self._served("ur")
+        for changer in self._served("rsp"):
             robot = self.model.resource_by_name[changer].parameters.get("robot")
-            if self.devices[changer].type != "rsp" or robot not in self.of_type("ur"):
+            if robot not in robots:
                 continue
+            poses = {name: tuple(pose["q"]) for name, pose in self.overrides[str(robot)]["poses"].items()}
             dock_poses = self.model.resource_by_name[changer].parameters["dock_poses"]
-            slots = {TOOLS.index(tool) + 1: self.poses[str(robot)][pose] for tool, pose in dock_poses.items()}
+            slots = {TOOLS.index(tool) + 1: poses[pose] for tool, pose in dock_poses.items()}
             tolerance = float(self.devices[str(robot)].params.get("joint_tolerance", 0.01))
-            flange = cell.FlangeCoupling(cell.RobotLink(self.processes[f"ur-{robot}"].address, COMMAND_PORT),
-                                         link, slots, tolerance)
+            flange = cell.FlangeCoupling(cell.RobotLink(self.server_of[str(robot)].address, COMMAND_PORT),
+                                         self._coupler(changer, couplers), slots, tolerance)
             self._spawn(flange.run(), f"flange {changer}")
         if self.loopback_port is None:
             return
@@ -400,21 +321,20 @@ class SimWorld:
         keys = Keys(self.config.station.name)
         for operator in (r.name for r in self.model.resources if r.device_type == "operator"):
             self._couple_operator(operator, keys, couplers)
-        for resource in self.of_type("rfid"):
+        for resource in self._served("rfid"):
             badge = cell.BadgeCoupling(self._bus, keys, Codec(self.model.resource_by_name[resource]),
-                                       self.processes[f"rfid-{resource}"].send, OPERATOR_TAG,
-                                       delay=0.5 / self.speed, retry=3.0)
+                                       self.server_of[resource].send, OPERATOR_TAG, delay=0.5 / self.speed, retry=3.0)
             self._spawn(badge.run(), f"badge {resource}")
 
     def _couple_operator(self, operator: str, keys: Keys, couplers: dict[str, cell.CouplerLink]) -> None:
         assert self._bus is not None
-        cameras = [r for r in self.of_type("camera")
+        cameras = [r for r in self._served("camera")
                    if self.model.resource_by_name[r].parameters.get("operator") == operator]
-        docks = [r for r in self.of_type("dock")
+        docks = [r for r in self._served("dock")
                  if self.model.resource_by_name[r].parameters.get("operator") == operator]
         if not cameras and not docks:
             return
-        walker = cell.Walker(self._zones(cameras[0]), speed=1.4 * self.speed) if cameras else None
+        walker = cell.Walker(self.overrides[cameras[0]]["zones"], speed=1.4 * self.speed) if cameras else None
         task_zones = dict(self.model.resource_by_name[cameras[0]].parameters["task_zones"]) if cameras else {}
         handheld: dict[str, list[str]] = {}
         for dock in docks:
@@ -422,8 +342,7 @@ class SimWorld:
                 handheld.setdefault(tool, []).extend(tasks)
         coupling = cell.OperatorCoupling(
             self._bus, keys, Codec(self.model.resource_by_name[operator]), task_zones, walker,
-            [self.processes[f"camera-{c}"].send for c in cameras], handheld,
-            [couplers[self._changer_of(d)] for d in docks])
+            [self.server_of[c].send for c in cameras], handheld, [self._coupler(d, couplers) for d in docks])
         self._spawn(coupling.run(), f"operator {operator}")
 
 

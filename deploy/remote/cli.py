@@ -52,10 +52,12 @@ def summary(config: StationConfig, resources: int, operations: int) -> list[str]
 def cmd_config_check(args: argparse.Namespace) -> int:
     from common.config import load_station
     from common.model import ModelError
+    from hubs.factory import check_devices
 
     path = Path(args.config)
     try:
         config, model = load_station(path)
+        check_devices(config)  # every device in sim or real mode has a driver that takes its parameters
     except ConfigError as exc:
         return _error("config check", str(exc))
     except ModelError as exc:

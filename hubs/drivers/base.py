@@ -1,10 +1,17 @@
 """The one driver interface every device implementation satisfies (emulate, sim and real alike).
 
 The hub runtime holds a `Driver` per resource and never knows which kind it holds:
-it calls `connect` once, then `read` at its rate, `write` when a command arrives,
-and `safe_state` when commands stop arriving. Values are keyed by the variable's
-short name (`run_m`, not `nr.run_m`), and use the model's domains (bools,
-enumeration names, small ints).
+it calls `connect` once, then `read` at its rate, `write` when a command arrives, and
+`enter_safe_state` at hub start and when commands stop arriving. Values are keyed by
+the variable's short name (`run_m`, not `nr.run_m`), and use the model's domains
+(bools, enumeration names, small ints).
+
+Optional capabilities are declared by inheriting them, never probed for:
+
+* `Inputs`: the driver's device depends on variables of other resources (an emulated
+  tool changer sees where the robot is); the runtime subscribes to them and hands
+  their values to `Observes.observe`.
+* `Observes`: the driver takes values of other resources' variables.
 """
 
 from __future__ import annotations
@@ -67,10 +74,31 @@ class Driver(abc.ABC):
         """Drive the outputs to the command variables. Raises DeviceUnavailable when it cannot."""
 
     @abc.abstractmethod
-    def safe_state(self) -> Mapping[str, Value]:
-        """The command values to apply when the controller is silent; a variable left out keeps its value
-        (a tool changer never drops its tool). Motion already under way is stopped by the driver."""
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        """Stop any motion under way and drive the outputs to their safe values; return the command
+        values now applied. The hub mirrors exactly these; a variable left out keeps its value (a tool
+        changer never drops its tool, a robot holds its reference but stands still) and nothing is
+        written afterwards: the next command the hub receives is applied as usual, motion included.
+        Raises DeviceUnavailable when the device does not answer (the driver still remembers the
+        safe values and drives them when the device returns)."""
 
     @abc.abstractmethod
     async def selftest(self) -> SelftestReport:
         """Device answers, inputs read, outputs read back where the device allows."""
+
+
+class Inputs(abc.ABC):
+    """Declared capability: the device depends on variables of other resources."""
+
+    @property
+    @abc.abstractmethod
+    def inputs(self) -> tuple[str, ...]:
+        """Full variable paths (`ur.pos_m`) of other resources whose values this driver needs."""
+
+
+class Observes(abc.ABC):
+    """Declared capability: the driver takes values of other resources' variables."""
+
+    @abc.abstractmethod
+    def observe(self, values: Mapping[str, Value]) -> None:
+        """New values, keyed by full variable path; may hold paths the driver did not ask for."""

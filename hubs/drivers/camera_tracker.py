@@ -32,12 +32,16 @@ import json
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Annotated
+
+import msgspec
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.tracker_feed import DEFAULT_PORT, VERSION
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +78,7 @@ def parse_frame(line: bytes) -> list[tuple[float, float]]:
         obj = json.loads(line)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"not JSON: {exc}") from exc
-    if not isinstance(obj, dict) or obj.get("v") != 1 or not isinstance(obj.get("people"), list):
+    if not isinstance(obj, dict) or obj.get("v") != VERSION or not isinstance(obj.get("people"), list):
         raise ValueError("not a version-1 tracker frame")
     people = []
     for person in obj["people"]:
@@ -91,7 +95,7 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
         resource: str = "cam",
         *,
         host: str,
-        port: int = 7001,
+        port: int = DEFAULT_PORT,
         zones: Mapping[str, Sequence[Sequence[float]]],
         stale_after: float = 0.5,
         backoff: Backoff | None = None,
@@ -121,8 +125,8 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
     async def write(self, commands: Mapping[str, Value]) -> None:
         return None  # the camera has no command variables
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -197,12 +201,24 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
         self._reader = None
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> CameraTracker:
-    return CameraTracker(
-        resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 7001)),
-        zones=require(params, "zones"),
-        stale_after=float(params.get("stale_after", 0.5)),
-        backoff=Backoff.from_params(params),
-    )
+Rectangle = Annotated[list[float], msgspec.Meta(min_length=4, max_length=4)]  # [x_min, y_min, x_max, y_max]
+
+
+class CameraParams(DriverParams, frozen=True, kw_only=True):
+    host: str
+    port: Port = DEFAULT_PORT
+    zones: dict[str, list[Rectangle]]
+    stale_after: Positive = 0.5
+
+    def __post_init__(self) -> None:
+        for name in self.zones:
+            if name not in ZONE_ORDER:
+                raise invalid(f"zones.{name}", f"unknown zone {name!r}; zones are {', '.join(ZONE_ORDER)}")
+
+
+def build(resource: str, params: CameraParams) -> CameraTracker:
+    return CameraTracker(resource, host=params.host, port=params.port, zones=params.zones,
+                         stale_after=params.stale_after, backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(CameraParams, build)

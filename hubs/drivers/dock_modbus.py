@@ -19,15 +19,15 @@ reported as not applicable (ok).  Safe state: none (nothing to command).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.modbus_io import ModbusLink
-from hubs.drivers.params import require
+from hubs.drivers.modbus_io import Address, ModbusLink, ModbusParams
 from hubs.drivers.reconnect import Backoff, LinkedDriver
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.coupler import DEVICE_ID, DI_DOCK, TOOLS
 
-SLOTS = ("nutrunner_home_m", "lift_tool_home_m", "filter_tool_home_m")
+SLOTS = tuple(f"{tool}_home_m" for tool in TOOLS)  # slot n+1 is the home of the n-th tool
 
 
 class DockModbus(LinkedDriver[ModbusLink]):
@@ -37,8 +37,8 @@ class DockModbus(LinkedDriver[ModbusLink]):
         *,
         host: str,
         port: int = 502,
-        device_id: int = 1,
-        di_base: int = 8,
+        device_id: int = DEVICE_ID,
+        di_base: int = DI_DOCK,
         timeout: float = 1.0,
         backoff: Backoff | None = None,
     ) -> None:
@@ -55,8 +55,8 @@ class DockModbus(LinkedDriver[ModbusLink]):
     async def write(self, commands: Mapping[str, Value]) -> None:
         return None  # the dock has no command variables
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # nothing to command
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -77,13 +77,13 @@ class DockModbus(LinkedDriver[ModbusLink]):
         await link.read_discrete_inputs(self.di_base, len(SLOTS), connecting=True)
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> DockModbus:
-    return DockModbus(
-        resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 502)),
-        device_id=int(params.get("device_id", 1)),
-        di_base=int(params.get("di_base", 8)),
-        timeout=float(params.get("timeout", 1.0)),
-        backoff=Backoff.from_params(params),
-    )
+class DockParams(ModbusParams, frozen=True, kw_only=True):
+    di_base: Address = DI_DOCK  # after the tool changer's inputs on a shared coupler
+
+
+def build(resource: str, params: DockParams) -> DockModbus:
+    return DockModbus(resource, host=params.host, port=params.port, device_id=params.device_id,
+                      di_base=params.di_base, timeout=params.timeout, backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(DockParams, build)

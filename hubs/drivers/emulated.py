@@ -3,8 +3,8 @@
 The emulator behind a `Driver` like any other: `write` sets the command variables,
 `read` returns the measured ones, and effects fire after their delays in a background
 task. Effects may depend on other resources (the tool changer sees where the robot is):
-`inputs` names those variables and the hub feeds them through `observe`, from the
-states the other hubs publish.
+it declares `Inputs` naming those variables, and `Observes` them: the hub feeds their
+values from the states the other hubs publish.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from common.model import Model, Value
 
 from ..emulator import EffectEmulator
-from .base import Driver, SelftestReport
+from .base import Driver, Inputs, Observes, SelftestReport
 
 SAFE_STATES: dict[str, dict[str, Value]] = {
     "nutrunner": {"run_c": False},
@@ -27,7 +27,7 @@ SAFE_STATES: dict[str, dict[str, Value]] = {
 }
 
 
-class EmulatedDriver(Driver):
+class EmulatedDriver(Driver, Inputs, Observes):
     def __init__(self, model: Model, resource: str, *, speed: float = 1.0, seed: int = 0,
                  failure_probability: float = 0.0, delay: float | None = None) -> None:
         self.resource = resource
@@ -41,8 +41,8 @@ class EmulatedDriver(Driver):
         self.measured = tuple(v.path for v in spec.measured)
         self.commands = tuple(v.path for v in spec.commands)
         own = set(self.values)
-        self.inputs = frozenset(p for p in self.emulator.paths if p not in own)
-        for path in self.inputs:
+        self._inputs = frozenset(p for p in self.emulator.paths if p not in own)
+        for path in self._inputs:
             self.values[path] = model.var(path).initial  # type: ignore[assignment]
         self._task: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
@@ -84,11 +84,15 @@ class EmulatedDriver(Driver):
                 if timer is not None:
                     timer.cancel()
 
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return tuple(sorted(self._inputs))
+
     def observe(self, values: Mapping[str, Value]) -> None:
         """Values of other resources' variables that this device's effects depend on."""
         changed = False
         for path, value in values.items():
-            if path in self.inputs and self.values.get(path) != value:
+            if path in self._inputs and self.values.get(path) != value:
                 self.values[path] = value
                 changed = True
         if changed:
@@ -102,7 +106,13 @@ class EmulatedDriver(Driver):
             self.values[self._prefix + name] = value
         self._wake.set()
 
-    def safe_state(self) -> dict[str, Value]:
+    async def enter_safe_state(self) -> dict[str, Value]:
+        safe = self.safe_values()
+        await self.write(safe)
+        return safe
+
+    def safe_values(self) -> dict[str, Value]:
+        """The command values of the safe state."""
         # As docs/resource-contract.md says for the real devices; the rest keep their value
         # (a robot holds its pose, a tool changer never drops its tool). A device type of the
         # station's own names its safe state in its model (`parameters["safe_state"]`, by

@@ -1,23 +1,7 @@
 """Lifting system on CAN (python-can; ``socketcan`` on the Pi, ``virtual`` in sim mode).
 
-Frame map (11-bit identifiers, CANopen-style COB-IDs around the lift's node id
-``N``, default 0x10; multi-byte values little-endian):
-
-===========  ===========  ===  ====================================================
-COB-ID       direction    DLC  payload
-===========  ===========  ===  ====================================================
-0x200 + N    hub → lift   2    byte 0 command: 0 stop, 1 move up, 2 move down;
-                                byte 1 sequence counter (mod 256)
-0x180 + N    lift → hub   6    bytes 0-1 position, mm (uint16);
-             every 20 ms        byte 2 flags: bit 0 upper limit switch, bit 1 lower
-                                limit switch, bit 2 moving up, bit 3 moving down,
-                                bit 7 fault;
-                                byte 3 fault code (0 none);
-                                byte 4 last command received, byte 5 its sequence
-                                (the read-back of the hub's output)
-0x700 + N    lift → hub   1    NMT heartbeat: 0x00 boot-up, 0x05 operational,
-             every 100 ms       0x7F pre-operational
-===========  ===========  ===  ====================================================
+Frame map: ``hubs.protocols.lift_can`` (command 0x200 + N, status 0x180 + N every
+20 ms, NMT heartbeat 0x700 + N every 100 ms, around the lift's node id N, default 0x10).
 
 The lift runs a command watchdog: with no command frame for 0.5 s it stops.  The
 driver therefore repeats the command in force every ``command_period`` (0.1 s).
@@ -33,10 +17,9 @@ Device lost: no heartbeat for ``heartbeat_timeout`` (0.35 s), no status frame fo
 next ``read`` raises ``DeviceUnavailable`` and the shared ReconnectLogic reopens the
 bus and waits for the heartbeat again.
 
-Safe state: calling ``safe_state()`` sends *stop* at once and keeps sending it instead
-of the target; ``ref_c`` keeps its value (``safe_state()`` returns ``{}``).  The hub's
-own write right after ``safe_state()`` (re-writing ``ref_c``) keeps the lift stopped
-(``hubs.drivers.safestate``); the next command resumes motion toward ``ref_c``.
+Safe state: ``enter_safe_state()`` sends *stop* at once and keeps sending it instead of
+the target (also after a reconnect); ``ref_c`` keeps its value (it returns ``{}``).  The
+next command resumes motion toward its ``ref_c``.
 """
 
 from __future__ import annotations
@@ -48,22 +31,36 @@ import struct
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import can
+import msgspec
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.params import DriverParams, Positive
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
-from hubs.drivers.safestate import SafeStateWrite
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.lift_can import (
+    CMD_DOWN,
+    CMD_STOP,
+    CMD_UP,
+    COB_COMMAND,
+    COB_HEARTBEAT,
+    COB_STATUS,
+    DEFAULT_NODE,
+    FLAG_FAULT,
+    FLAG_LOWER,
+    FLAG_MOVING_DOWN,
+    FLAG_MOVING_UP,
+    FLAG_UPPER,
+    NMT_OPERATIONAL,
+    STATUS_FORMAT,
+)
 
 log = logging.getLogger(__name__)
 
-CMD_STOP, CMD_UP, CMD_DOWN = 0, 1, 2
 COMMANDS = {"up": CMD_UP, "down": CMD_DOWN}
-COB_COMMAND, COB_STATUS, COB_HEARTBEAT = 0x200, 0x180, 0x700
-NMT_BOOT, NMT_OPERATIONAL, NMT_PREOP = 0x00, 0x05, 0x7F
-FLAG_UPPER, FLAG_LOWER, FLAG_MOVING_UP, FLAG_MOVING_DOWN, FLAG_FAULT = 0x01, 0x02, 0x04, 0x08, 0x80
 
 BusFactory = Callable[[], can.BusABC]
 
@@ -85,7 +82,7 @@ class LiftStatus:
     def decode(cls, data: bytes | bytearray, received: float) -> LiftStatus:
         if len(data) < 6:
             raise ValueError(f"status frame too short ({len(data)} bytes)")
-        position, flags, code, echo, seq = struct.unpack_from("<HBBBB", data)
+        position, flags, code, echo, seq = struct.unpack_from(STATUS_FORMAT, data)
         return cls(
             position,
             bool(flags & FLAG_UPPER),
@@ -119,7 +116,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         self,
         resource: str = "lift",
         *,
-        node_id: int = 0x10,
+        node_id: int = DEFAULT_NODE,
         bus_factory: BusFactory,
         where: str = "can0",
         heartbeat_timeout: float = 0.35,
@@ -142,7 +139,6 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         self._heartbeat_seen = asyncio.Event()
         self._desired: str | None = None  # last commanded ref_c
         self._held = False  # safe state entered: send stop until the next write
-        self._safe_write = SafeStateWrite()
         self._seq = 0
         self._link = ReconnectLogic(
             f"{resource}@{where}:node 0x{node_id:02x}",
@@ -169,17 +165,13 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         ref = str(commands["ref_c"])
         if ref not in COMMANDS:
             raise ValueError(f"{self.resource}: ref_c must be one of {sorted(COMMANDS)}, got {ref!r}")
-        if self._safe_write.consume():
-            self._desired = ref  # the hub re-writing the reference while entering the safe state: stay stopped
-            return
         self._desired, self._held = ref, False
         if not self.connected:
             raise DeviceUnavailable(f"{self.resource}: lift not connected ({self._link.last_error})")
         self._send_command(COMMANDS[ref])
 
-    def safe_state(self) -> Mapping[str, Value]:
-        self._held = True
-        self._safe_write.entered()
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        self._held = True  # stop instead of the target until the next command, also after a reconnect
         if self.connected:
             with contextlib.suppress(DeviceUnavailable):
                 self._send_command(CMD_STOP)
@@ -329,23 +321,32 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         self._heartbeat = None
 
 
-def from_params(resource: str, params: Mapping[str, Any], *, interface: str | None = None) -> LiftCan:
-    interface = interface or str(params.get("interface", "socketcan"))
-    channel = str(params.get("channel", "can0"))
-    extra: dict[str, Any] = {}
-    if "bitrate" in params:
-        extra["bitrate"] = int(params["bitrate"])
+class LiftParams(DriverParams, frozen=True, kw_only=True):
+    interface: str = "socketcan"  # python-can interface
+    channel: str = "can0"
+    node_id: Annotated[int, msgspec.Meta(ge=1, le=0x7F)] = DEFAULT_NODE
+    bitrate: Annotated[int, msgspec.Meta(gt=0)] | None = None
+    heartbeat_timeout: Positive = 0.35
+    status_timeout: Positive = 0.1
+    command_period: Positive = 0.1
+
+
+def build(resource: str, params: LiftParams) -> LiftCan:
+    extra: dict[str, Any] = {} if params.bitrate is None else {"bitrate": params.bitrate}
 
     def factory() -> can.BusABC:
-        return can.Bus(interface=interface, channel=channel, **extra)
+        return can.Bus(interface=params.interface, channel=params.channel, **extra)
 
     return LiftCan(
         resource,
-        node_id=int(params.get("node_id", 0x10)),
+        node_id=params.node_id,
         bus_factory=factory,
-        where=f"{interface}:{channel}",
-        heartbeat_timeout=float(params.get("heartbeat_timeout", 0.35)),
-        status_timeout=float(params.get("status_timeout", 0.1)),
-        command_period=float(params.get("command_period", 0.1)),
-        backoff=Backoff.from_params(params),
+        where=f"{params.interface}:{params.channel}",
+        heartbeat_timeout=params.heartbeat_timeout,
+        status_timeout=params.status_timeout,
+        command_period=params.command_period,
+        backoff=params.backoff(),
     )
+
+
+PLUGIN = DriverPlugin(LiftParams, build)

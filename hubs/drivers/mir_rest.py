@@ -31,15 +31,13 @@ Device lost: a failed or timed-out poll, or a status older than ``stale_after``:
 ``read`` raises ``DeviceUnavailable``; the shared ReconnectLogic reconnects with
 backoff.  A 401 is reported as a connect failure ("authentication rejected").
 
-Safe state: ``goto_c = none`` (the robot stops; written by the hub like any command).
+Safe state: ``goto_c = none`` (the queue is aborted and the robot pauses where it is).
 """
 
 from __future__ import annotations
 
 import asyncio
-import base64
 import contextlib
-import hashlib
 import logging
 import math
 import time
@@ -50,19 +48,14 @@ import httpx
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.mir_rest import API, EXECUTING, PAUSE, READY, auth_header
 
 log = logging.getLogger(__name__)
 
-API = "/api/v2.0.0"
-READY, PAUSE, EXECUTING = 3, 4, 5
 TARGETS = ("kitting", "station")
-
-
-def auth_header(username: str, password: str) -> str:
-    token = f"{username}:{hashlib.sha256(password.encode()).hexdigest()}"
-    return "Basic " + base64.b64encode(token.encode()).decode()
 
 
 class MirRest(LinkedDriver[ReconnectLogic]):
@@ -123,8 +116,10 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         async with self._lock:
             await self._apply(goto, self._fresh_status())
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {"goto_c": "none"}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        safe: dict[str, Value] = {"goto_c": "none"}
+        await self.write(safe)  # abort the queue and pause; remembered for a reconnect
+        return safe
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -313,17 +308,38 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         self._status = None
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> MirRest:
+class MirParams(DriverParams, frozen=True, kw_only=True):
+    host: str
+    port: Port = 80
+    username: str = "admin"
+    password: str = "admin"
+    missions: dict[str, str]  # target -> mission GUID on the robot
+    positions: dict[str, tuple[float, float]]  # target -> [x, y] on the robot's map
+    tolerance: Positive = 0.3
+    poll_interval: Positive = 0.2
+    timeout: Positive = 1.0
+
+    def __post_init__(self) -> None:
+        for key, table in (("missions", self.missions), ("positions", self.positions)):
+            missing = [t for t in TARGETS if t not in table]
+            if missing:
+                raise invalid(key, f"needs an entry for {', '.join(missing)} (targets: {', '.join(TARGETS)})")
+
+
+def build(resource: str, params: MirParams) -> MirRest:
     return MirRest(
         resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 80)),
-        username=str(params.get("username", "admin")),
-        password=str(params.get("password", "admin")),
-        missions=dict(require(params, "missions")),
-        positions={k: tuple(v) for k, v in dict(require(params, "positions")).items()},
-        tolerance=float(params.get("tolerance", 0.3)),
-        poll_interval=float(params.get("poll_interval", 0.2)),
-        timeout=float(params.get("timeout", 1.0)),
-        backoff=Backoff.from_params(params),
+        host=params.host,
+        port=params.port,
+        username=params.username,
+        password=params.password,
+        missions=params.missions,
+        positions=params.positions,
+        tolerance=params.tolerance,
+        poll_interval=params.poll_interval,
+        timeout=params.timeout,
+        backoff=params.backoff(),
     )
+
+
+PLUGIN = DriverPlugin(MirParams, build)

@@ -14,15 +14,28 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from hubs.drivers.base import DeviceUnavailable
+from hubs.drivers.params import DriverParams, Port, Positive
 from hubs.drivers.reconnect import Backoff, ReconnectLogic, describe
 
 log = logging.getLogger(__name__)
+
+Address = Annotated[int, msgspec.Meta(ge=0, le=65535)]
+
+
+class ModbusParams(DriverParams, frozen=True, kw_only=True):
+    """The coupler's address, shared by the drivers of the devices wired to it."""
+
+    host: str
+    port: Port = 502
+    device_id: Annotated[int, msgspec.Meta(ge=0, le=247)] = 1
+    timeout: Positive = 1.0
 
 
 class ModbusLink:

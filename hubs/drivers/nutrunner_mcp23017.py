@@ -14,22 +14,8 @@ GPB2       input      tool *fail* (NOK)                           ``fail_m``
 ``inputs_active_low = true`` inverts the three inputs in the driver (open-collector
 opto outputs with pull-ups); the expander's IPOL registers are left at 0.
 
-MCP23017 register map, IOCON.BANK = 0 (the map this driver configures and uses):
-
-====  =======  ====  =======  ====  ========
-addr  reg      addr  reg      addr  reg
-====  =======  ====  =======  ====  ========
-0x00  IODIRA   0x08  INTCONA  0x10  INTCAPA
-0x01  IODIRB   0x09  INTCONB  0x11  INTCAPB
-0x02  IPOLA    0x0A  IOCON    0x12  GPIOA
-0x03  IPOLB    0x0B  IOCON    0x13  GPIOB
-0x04  GPINTENA 0x0C  GPPUA    0x14  OLATA
-0x05  GPINTENB 0x0D  GPPUB    0x15  OLATB
-0x06  DEFVALA  0x0E  INTFA
-0x07  DEFVALB  0x0F  INTFB
-====  =======  ====  =======  ====  ========
-
-IODIR bit 1 = input; GPIO reads pin levels; OLAT holds the output latches.
+Register map (IOCON.BANK = 0, the map this driver configures and uses):
+``hubs.protocols.mcp23017``.
 
 Protocol:
 
@@ -59,17 +45,19 @@ import functools
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import Annotated, Protocol, TypeVar
+
+import msgspec
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.params import DriverParams, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.mcp23017 import DEFAULT_ADDRESS, GPINTENB, GPIOA, IOCON, IODIRA, IPOLA, NREG, OLATA
 
 log = logging.getLogger(__name__)
 
-IODIRA, IPOLA, GPINTENB, IOCON = 0x00, 0x02, 0x05, 0x0A
-GPIOA, OLATA = 0x12, 0x14
-NREG = 0x16
 IOCON_VALUE = 0x00  # BANK=0, MIRROR=0, SEQOP=0 (sequential), DISSLW=0, ODR=0, INTPOL=0
 
 T = TypeVar("T")
@@ -102,15 +90,6 @@ class Pins:
     running: tuple[int, int] = (1, 0)
     torque_ok: tuple[int, int] = (1, 1)
     fail: tuple[int, int] = (1, 2)
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Pins:
-        return cls(
-            run=parse_pin(params.get("run_pin", "A0")),
-            running=parse_pin(params.get("run_m_pin", "B0")),
-            torque_ok=parse_pin(params.get("tqr_m_pin", "B1")),
-            fail=parse_pin(params.get("fail_m_pin", "B2")),
-        )
 
     def iodir(self) -> tuple[int, int]:
         """IODIRA, IODIRB: all inputs except the run pin."""
@@ -183,8 +162,10 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
             raise DeviceUnavailable(f"{self.resource}: expander not connected ({self._link.last_error})")
         await self._set_run(run)
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {"run_c": False}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        safe: dict[str, Value] = {"run_c": False}
+        await self.write(safe)  # remembered first: driven on reconnect if the expander is away
+        return safe
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -327,14 +308,41 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
             raise DeviceUnavailable(f"{self.resource}: {reason}") from exc
 
 
-def from_params(resource: str, params: Mapping[str, Any], bus_factory: BusFactory | None = None) -> NutrunnerMcp23017:
+class NutrunnerParams(DriverParams, frozen=True, kw_only=True):
+    bus: Annotated[int, msgspec.Meta(ge=0)] = 1  # /dev/i2c-<bus>
+    address: Annotated[int, msgspec.Meta(ge=0x03, le=0x77)] = DEFAULT_ADDRESS
+    run_pin: str = "A0"  # MCP23017 pins, A0..B7
+    run_m_pin: str = "B0"
+    tqr_m_pin: str = "B1"
+    fail_m_pin: str = "B2"
+    inputs_active_low: bool = False
+    io_timeout: Positive = 0.5
+
+    def __post_init__(self) -> None:
+        pins = {"run_pin": self.run_pin, "run_m_pin": self.run_m_pin, "tqr_m_pin": self.tqr_m_pin,
+                "fail_m_pin": self.fail_m_pin}
+        for key, pin in pins.items():
+            try:
+                parse_pin(pin)
+            except ValueError as exc:
+                raise invalid(key, str(exc)) from None
+
+    def pins(self) -> Pins:
+        return Pins(run=parse_pin(self.run_pin), running=parse_pin(self.run_m_pin),
+                    torque_ok=parse_pin(self.tqr_m_pin), fail=parse_pin(self.fail_m_pin))
+
+
+def build(resource: str, params: NutrunnerParams, bus_factory: BusFactory | None = None) -> NutrunnerMcp23017:
     return NutrunnerMcp23017(
         resource,
-        bus_number=int(params.get("bus", 1)),
-        address=int(params.get("address", 0x20)),
+        bus_number=params.bus,
+        address=params.address,
         bus_factory=bus_factory,
-        pins=Pins.from_params(params),
-        inputs_active_low=bool(params.get("inputs_active_low", False)),
-        io_timeout=float(params.get("io_timeout", 0.5)),
-        backoff=Backoff.from_params(params),
+        pins=params.pins(),
+        inputs_active_low=params.inputs_active_low,
+        io_timeout=params.io_timeout,
+        backoff=params.backoff(),
     )
+
+
+PLUGIN = DriverPlugin(NutrunnerParams, build)

@@ -29,9 +29,9 @@ import contextlib
 import logging
 import random
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 from .base import Driver
 
@@ -61,15 +61,6 @@ class Backoff:
     def reset(self) -> None:
         self.attempt = 0
 
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> Backoff:
-        """``reconnect_min``, ``reconnect_max`` (s), ``reconnect_factor``, ``reconnect_jitter`` from hubs.toml."""
-        return cls(
-            initial=float(params.get("reconnect_min", 0.2)),
-            maximum=float(params.get("reconnect_max", 5.0)),
-            factor=float(params.get("reconnect_factor", 2.0)),
-            jitter=float(params.get("reconnect_jitter", 0.2)),
-        )
 
 
 def describe(exc: BaseException) -> str:

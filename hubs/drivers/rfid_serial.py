@@ -36,36 +36,34 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Annotated
 
+import msgspec
 import serial
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, NonNegative
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.em4100 import BAUDRATE, ETX, FRAME_BODY, STX, TAG_CHARS, checksum
 
 log = logging.getLogger(__name__)
 
-STX, ETX = 0x02, 0x03
-FRAME_BODY = 14  # 10 tag + 2 checksum + CR LF
 MAX_BUFFER = 256
 
 
 def parse_body(body: bytes) -> str | None:
     """The tag in a frame body (between STX and ETX), None when the frame is bad."""
-    if len(body) != FRAME_BODY or body[12:] != b"\r\n":
+    if len(body) != FRAME_BODY or body[-2:] != b"\r\n":
         return None
     try:
-        text = body[:12].decode("ascii")
-        raw = bytes.fromhex(text[:10])
-        check = int(text[10:], 16)
+        text = body[:-2].decode("ascii")
+        raw = bytes.fromhex(text[:TAG_CHARS])
+        check = int(text[TAG_CHARS:], 16)
     except ValueError:
         return None
-    value = 0
-    for byte in raw:
-        value ^= byte
-    return text[:10].upper() if value == check else None
+    return text[:TAG_CHARS].upper() if checksum(raw) == check else None
 
 
 class RfidSerial(LinkedDriver[ReconnectLogic]):
@@ -74,7 +72,7 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
         resource: str = "rfid",
         *,
         port: str,
-        baudrate: int = 9600,
+        baudrate: int = BAUDRATE,
         operators: Iterable[str] | Mapping[str, str] = (),
         session_timeout: float = 8 * 3600.0,
         repeat_window: float = 1.0,
@@ -121,8 +119,8 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
     async def write(self, commands: Mapping[str, Value]) -> None:
         return None  # the reader has no command variables
 
-    def safe_state(self) -> Mapping[str, Value]:
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -249,13 +247,18 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
         await asyncio.to_thread(shutdown)
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> RfidSerial:
-    return RfidSerial(
-        resource,
-        port=str(require(params, "serial_port")),
-        baudrate=int(params.get("baudrate", 9600)),
-        operators=params.get("operators", ()),
-        session_timeout=float(params.get("session_timeout", 8 * 3600.0)),
-        repeat_window=float(params.get("repeat_window", 1.0)),
-        backoff=Backoff.from_params(params),
-    )
+class RfidParams(DriverParams, frozen=True, kw_only=True):
+    serial_port: str
+    baudrate: Annotated[int, msgspec.Meta(gt=0)] = BAUDRATE
+    operators: list[str] | dict[str, str] = []  # allowed tags, or {tag: operator name}
+    session_timeout: NonNegative = 8 * 3600.0  # 0: never
+    repeat_window: NonNegative = 1.0
+
+
+def build(resource: str, params: RfidParams) -> RfidSerial:
+    return RfidSerial(resource, port=params.serial_port, baudrate=params.baudrate, operators=params.operators,
+                      session_timeout=params.session_timeout, repeat_window=params.repeat_window,
+                      backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(RfidParams, build)

@@ -22,28 +22,33 @@ raises ``DeviceUnavailable``.  On (re)connect the driver drives the last command
 unlocks on its own.
 
 Safe state: none. ``lock_c`` keeps its value (a tool changer never drops its tool), so
-``safe_state()`` is empty; the valves hold position and nothing else moves.  The hub's
-own write right after ``safe_state()`` (the last command again, or the initial
-``lock_c = false`` at hub start) leaves the solenoids as they are
-(``hubs.drivers.safestate``): a hub start never unlocks a held tool.
+``enter_safe_state()`` changes nothing and returns ``{}``: the valves hold position and
+nothing else moves, and a hub (re)start never unlocks a held tool.
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Mapping
-from typing import Any
 
 from common.model import Value
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.modbus_io import ModbusLink
-from hubs.drivers.params import require
+from hubs.drivers.modbus_io import Address, ModbusLink, ModbusParams
 from hubs.drivers.reconnect import Backoff, LinkedDriver
-from hubs.drivers.safestate import SafeStateWrite
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.coupler import (
+    CHANGER_INPUTS,
+    DEVICE_ID,
+    DI_CODE0,
+    DI_CODE1,
+    DI_LOCKED,
+    DI_PRESENT,
+    DI_PRESSURE,
+    DI_UNLOCKED,
+    TOOLS,
+)
 
-TOOL_CODES = {0: "none", 1: "nutrunner", 2: "lift_tool", 3: "filter_tool"}
-LOCKED, UNLOCKED, PRESSURE, PRESENT, CODE0, CODE1 = range(6)
-N_INPUTS = 6
+TOOL_CODES = {0: "none", **{code: tool for code, tool in enumerate(TOOLS, start=1)}}
 
 
 class RspModbus(LinkedDriver[ModbusLink]):
@@ -53,7 +58,7 @@ class RspModbus(LinkedDriver[ModbusLink]):
         *,
         host: str,
         port: int = 502,
-        device_id: int = 1,
+        device_id: int = DEVICE_ID,
         coil_base: int = 0,
         di_base: int = 0,
         timeout: float = 1.0,
@@ -63,14 +68,13 @@ class RspModbus(LinkedDriver[ModbusLink]):
         self.coil_base = coil_base
         self.di_base = di_base
         self._desired_lock: bool | None = None
-        self._safe_write = SafeStateWrite()
         self._link = ModbusLink(
             resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._on_connect
         )
 
     async def read(self) -> Mapping[str, Value]:
-        inputs = await self.link.read_discrete_inputs(self.di_base, N_INPUTS)
-        if inputs[LOCKED] and inputs[UNLOCKED]:
+        inputs = await self.link.read_discrete_inputs(self.di_base, CHANGER_INPUTS)
+        if inputs[DI_LOCKED] and inputs[DI_UNLOCKED]:
             raise DeviceUnavailable(f"{self.resource}: locked and unlocked sensors both on (sensor fault)")
         return self._decode(inputs)
 
@@ -78,14 +82,11 @@ class RspModbus(LinkedDriver[ModbusLink]):
         if "lock_c" not in commands:
             return
         lock = bool(commands["lock_c"])
-        if self._safe_write.consume():
-            return  # the hub's write while entering the safe state (or its initial value at start): keep the lock
         self._desired_lock = lock
         await self._drive(lock)
 
-    def safe_state(self) -> Mapping[str, Value]:
-        self._safe_write.entered()
-        return {}
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}  # the valves hold: a tool changer never drops its tool
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)
@@ -127,11 +128,11 @@ class RspModbus(LinkedDriver[ModbusLink]):
 
     @staticmethod
     def _decode(inputs: list[bool]) -> dict[str, Value]:
-        code = int(inputs[CODE0]) | int(inputs[CODE1]) << 1
+        code = int(inputs[DI_CODE0]) | int(inputs[DI_CODE1]) << 1
         return {
-            "locked_m": inputs[LOCKED],
-            "tool_m": TOOL_CODES[code] if inputs[PRESENT] else "none",
-            "pressure_ok_m": inputs[PRESSURE],
+            "locked_m": inputs[DI_LOCKED],
+            "tool_m": TOOL_CODES[code] if inputs[DI_PRESENT] else "none",
+            "pressure_ok_m": inputs[DI_PRESSURE],
         }
 
     async def _drive(self, lock: bool, *, connecting: bool = False) -> None:
@@ -145,21 +146,22 @@ class RspModbus(LinkedDriver[ModbusLink]):
             )
 
     async def _on_connect(self, link: ModbusLink) -> None:
-        await link.read_discrete_inputs(self.di_base, N_INPUTS, connecting=True)
+        await link.read_discrete_inputs(self.di_base, CHANGER_INPUTS, connecting=True)
         if self._desired_lock is not None:
             # The coupler answers; a read-back problem shows on the next write and in the selftest.
             with contextlib.suppress(DeviceUnavailable):
                 await self._drive(self._desired_lock, connecting=True)
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> RspModbus:
-    return RspModbus(
-        resource,
-        host=str(require(params, "host")),
-        port=int(params.get("port", 502)),
-        device_id=int(params.get("device_id", 1)),
-        coil_base=int(params.get("coil_base", 0)),
-        di_base=int(params.get("di_base", 0)),
-        timeout=float(params.get("timeout", 1.0)),
-        backoff=Backoff.from_params(params),
-    )
+class RspParams(ModbusParams, frozen=True, kw_only=True):
+    coil_base: Address = 0
+    di_base: Address = 0
+
+
+def build(resource: str, params: RspParams) -> RspModbus:
+    return RspModbus(resource, host=params.host, port=params.port, device_id=params.device_id,
+                     coil_base=params.coil_base, di_base=params.di_base, timeout=params.timeout,
+                     backoff=params.backoff())
+
+
+PLUGIN = DriverPlugin(RspParams, build)

@@ -35,11 +35,10 @@ reach the controller): the worker exits or fails to start, sends no state for
 (default 0.25; the robot stopped talking).  The worker is then killed and started
 again with backoff.
 
-Safe state: calling ``safe_state()`` stops the robot at once (motion backend stop, then
-dashboard ``stop``); ``ref_pos_c`` keeps its value (the robot holds its pose).  The hub's
-own write right after ``safe_state()`` (re-writing ``ref_pos_c``, or its initial value
-at hub start) keeps the robot where it is (``hubs.drivers.safestate``); the next
-command moves on.  A robot is therefore never set in motion by a hub (re)start.
+Safe state: ``enter_safe_state()`` stops the robot at once (motion backend stop, then
+dashboard ``stop``) and holds it until the next command; ``ref_pos_c`` keeps its value
+(it returns ``{}``).  A robot is therefore never set in motion by a hub (re)start; the
+next command moves on.
 
 ``unlock_protective_stop()`` is offered for the operator console (dashboard
 ``close safety popup`` + ``unlock protective stop``).
@@ -54,58 +53,22 @@ import logging
 import math
 import multiprocessing
 import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
-from typing import Any
+from typing import Any, Literal
+
+import msgspec
 
 from common.model import Value
 from hubs.drivers import ur_rtde_worker as worker
 from hubs.drivers.base import DeviceUnavailable, SelftestReport
-from hubs.drivers.params import require
+from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic
-from hubs.drivers.safestate import SafeStateWrite
+from hubs.drivers.registry import DriverPlugin
+from hubs.protocols.ur import COMMAND_PORT, RUNNING, Pose, rotation_between
 
 log = logging.getLogger(__name__)
-
-RUNNING, NORMAL = 7, 1
-
-
-@dataclass(frozen=True)
-class Pose:
-    kind: str  # "joint" or "tcp"
-    values: tuple[float, ...]
-
-    @classmethod
-    def parse(cls, name: str, spec: Mapping[str, Sequence[float]]) -> Pose:
-        keys = [k for k in ("q", "tcp") if k in spec]
-        if len(keys) != 1:
-            raise ValueError(f"pose {name!r}: give exactly one of q (joint angles) or tcp (pose)")
-        values = tuple(float(v) for v in spec[keys[0]])
-        if len(values) != 6:
-            raise ValueError(f"pose {name!r}: 6 values needed, got {len(values)}")
-        return cls("joint" if keys[0] == "q" else "tcp", values)
-
-
-def rotation_matrix(rv: Sequence[float]) -> list[list[float]]:
-    angle = math.sqrt(sum(v * v for v in rv))
-    if angle < 1e-12:
-        return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    x, y, z = (v / angle for v in rv)
-    c, s, t = math.cos(angle), math.sin(angle), 1 - math.cos(angle)
-    return [
-        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
-        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
-        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
-    ]
-
-
-def rotation_between(a: Sequence[float], b: Sequence[float]) -> float:
-    """The angle (rad) of the rotation from orientation ``a`` to ``b`` (rotation vectors)."""
-    ra, rb = rotation_matrix(a), rotation_matrix(b)
-    trace = sum(ra[k][i] * rb[k][i] for i in range(3) for k in range(3))  # trace(raᵀ rb)
-    return math.acos(max(-1.0, min(1.0, (trace - 1) / 2)))
 
 
 class UrRtde(LinkedDriver[ReconnectLogic]):
@@ -116,7 +79,7 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         host: str,
         poses: Mapping[str, Pose],
         motion_backend: str = "real",
-        command_port: int = 30099,
+        command_port: int = COMMAND_PORT,
         joint_tolerance: float = 0.01,
         tcp_tolerance: float = 0.005,
         rot_tolerance: float = 0.02,
@@ -161,7 +124,6 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         self._issued: str | None = None
         self._issued_at = 0.0
         self._drive_lock = asyncio.Lock()
-        self._safe_write = SafeStateWrite()
         self._link = ReconnectLogic(
             f"{resource}@{host}", self._spawn, self._kill, backoff=backoff, connect_timeout=start_timeout + 2
         )
@@ -182,15 +144,11 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         target = str(commands["ref_pos_c"])
         if target not in self.poses:
             raise ValueError(f"{self.resource}: unknown pose {target!r}; poses are {', '.join(self.poses)}")
-        if self._safe_write.consume():
-            self._desired = target  # the hub re-writing the reference while entering the safe state: hold
-            return
         self._desired, self._held = target, False
         await self._drive(self._fresh_state())
 
-    def safe_state(self) -> Mapping[str, Value]:
-        self._held = True
-        self._safe_write.entered()
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        self._held = True  # stands still until the next command
         self._issued = None
         if self.connected:
             self._send_nowait("stop")
@@ -467,22 +425,56 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         self._state = None
 
 
-def from_params(resource: str, params: Mapping[str, Any]) -> UrRtde:
-    raw_poses = require(params, "poses")
-    poses = {name: Pose.parse(name, spec) for name, spec in dict(raw_poses).items()}
+class PoseSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    q: list[float] | None = None  # joint angles, rad
+    tcp: list[float] | None = None  # x, y, z (m), rotation vector (rad)
+
+
+class UrParams(DriverParams, frozen=True, kw_only=True):
+    host: str
+    poses: dict[str, PoseSpec]
+    motion_backend: Literal["real", "sim"] = "real"
+    command_port: Port = COMMAND_PORT  # the fake controller's side channel (motion_backend "sim")
+    joint_tolerance: Positive = 0.01
+    tcp_tolerance: Positive = 0.005
+    rot_tolerance: Positive = 0.02
+    stale_after: Positive = 0.25
+    start_timeout: Positive = 10.0
+    reissue_after: Positive = 1.0
+    joint_speed: Positive = 1.05
+    tcp_speed: Positive = 0.25
+
+    def __post_init__(self) -> None:
+        if not self.poses:
+            raise invalid("poses", "at least one pose needed")
+        for name in self.poses:
+            try:
+                self.pose(name)
+            except ValueError as exc:
+                raise invalid(f"poses.{name}", str(exc)) from None
+
+    def pose(self, name: str) -> Pose:
+        spec = self.poses[name]
+        return Pose.parse(name, {k: v for k, v in (("q", spec.q), ("tcp", spec.tcp)) if v is not None})
+
+
+def build(resource: str, params: UrParams) -> UrRtde:
     return UrRtde(
         resource,
-        host=str(require(params, "host")),
-        poses=poses,
-        motion_backend=str(params.get("motion_backend", "real")),
-        command_port=int(params.get("command_port", 30099)),
-        joint_tolerance=float(params.get("joint_tolerance", 0.01)),
-        tcp_tolerance=float(params.get("tcp_tolerance", 0.005)),
-        rot_tolerance=float(params.get("rot_tolerance", 0.02)),
-        stale_after=float(params.get("stale_after", 0.25)),
-        start_timeout=float(params.get("start_timeout", 10.0)),
-        reissue_after=float(params.get("reissue_after", 1.0)),
-        joint_speed=float(params.get("joint_speed", 1.05)),
-        tcp_speed=float(params.get("tcp_speed", 0.25)),
-        backoff=Backoff.from_params(params),
+        host=params.host,
+        poses={name: params.pose(name) for name in params.poses},
+        motion_backend=params.motion_backend,
+        command_port=params.command_port,
+        joint_tolerance=params.joint_tolerance,
+        tcp_tolerance=params.tcp_tolerance,
+        rot_tolerance=params.rot_tolerance,
+        stale_after=params.stale_after,
+        start_timeout=params.start_timeout,
+        reissue_after=params.reissue_after,
+        joint_speed=params.joint_speed,
+        tcp_speed=params.tcp_speed,
+        backoff=params.backoff(),
     )
+
+
+PLUGIN = DriverPlugin(UrParams, build)

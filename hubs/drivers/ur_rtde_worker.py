@@ -46,6 +46,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
+from hubs.protocols.ur import COMMAND_PORT, DASHBOARD_PORT
+
 RECEIVE_VARIABLES = [
     "timestamp",
     "actual_q",
@@ -64,8 +66,8 @@ RECEIVE_VARIABLES = [
 class WorkerConfig:
     host: str
     backend: str = "real"  # "real": RTDEControlInterface; "sim": the fake's command port
-    command_port: int = 30099
-    dashboard_port: int = 29999
+    command_port: int = COMMAND_PORT
+    dashboard_port: int = DASHBOARD_PORT
     frequency: float = 125.0
     publish_period: float = 0.02
     joint_speed: float = 1.05  # rad/s, leading axis

@@ -29,6 +29,10 @@ import contextlib
 import json
 import sys
 import time
+from typing import Any
+
+from hubs.protocols.tracker_feed import DEFAULT_PORT, VERSION
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
 
 
 class CameraTrackerSim:
@@ -56,7 +60,8 @@ class CameraTrackerSim:
     def frame(self) -> bytes:
         self.seq += 1
         people = [{"id": i, "x": round(x, 3), "y": round(y, 3)} for i, (x, y) in sorted(self.people.items())]
-        return (json.dumps({"v": 1, "seq": self.seq, "t": round(time.time(), 3), "people": people}) + "\n").encode()
+        frame = {"v": VERSION, "seq": self.seq, "t": round(time.time(), 3), "people": people}
+        return (json.dumps(frame) + "\n").encode()
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._writers.add(writer)
@@ -152,10 +157,25 @@ async def _serve(host: str, port: int, rate: float, walk: float, control: bool =
         await sim.stop()
 
 
+# --- as a simulator plugin (device type camera) ------------------------------------------------
+
+SIM_ZONES = {"shared": [[0.0, 0.0, 2.0, 2.0]], "robot": [[2.0, 0.0, 4.0, 2.0]]}  # where the world's operator walks
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    zones: Any = device.params.get("zones", SIM_ZONES)
+    return SimServer(python_module("hubs.sim.camera_tracker", "--host", "127.0.0.1", "--port", "0", "--control"),
+                     driver_params=lambda address: {**tcp_params(address), "zones": zones}, control=True)
+
+
+PLUGIN = SimulatorPlugin("camera tracker feed", server=_server,
+                         defaults={"host": "127.0.0.1", "port": DEFAULT_PORT, "zones": SIM_ZONES})
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Simulated safety-camera tracker feed (TCP JSON lines)")
     parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=7001, help="TCP port (0: any free port)")
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port (0: any free port)")
     parser.add_argument("--rate", type=float, default=20.0, help="frames per second")
     parser.add_argument(
         "--walk",

@@ -47,7 +47,8 @@ from pymodbus.exceptions import ModbusException
 
 from common.bus import Bus, Keys
 from common.messages import Codec, HubStatus, MessageError
-from hubs.sim.toolchanger_modbus import HR_FLANGE, HR_HAND, TOOLS
+from hubs.protocols.coupler import DEVICE_ID, TOOLS
+from hubs.sim.toolchanger_modbus import HR_FLANGE, HR_HAND
 
 log = logging.getLogger("statehub.simworld")
 
@@ -59,7 +60,7 @@ Rect = Sequence[float]  # x0, y0, x1, y1
 class CouplerLink:
     """Writes the simulator-only holding registers of the Modbus coupler simulator."""
 
-    def __init__(self, host: str, port: int, device_id: int = 1) -> None:
+    def __init__(self, host: str, port: int, device_id: int = DEVICE_ID) -> None:
         self.host, self.port, self.device_id = host, port, device_id
         self._client: AsyncModbusTcpClient | None = None
         self._lock = asyncio.Lock()

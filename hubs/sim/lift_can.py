@@ -1,7 +1,7 @@
 """A simulated lifting system on python-can's ``virtual`` interface.
 
-Speaks the frame map documented in ``hubs/drivers/lift_can.py`` from the device side,
-implemented here independently: it receives command frames (0x200 + node), publishes
+Speaks the frame map of ``hubs.protocols.lift_can`` from the device side (the driver's
+module documents the mapping to the model): it receives command frames (0x200 + node), publishes
 status frames (0x180 + node) every ``status_period`` and NMT heartbeats (0x700 + node)
 every ``heartbeat_period``, preceded by a boot-up heartbeat (0x00) when it starts.
 
@@ -21,25 +21,49 @@ from __future__ import annotations
 import struct
 import threading
 import time
+from collections.abc import Mapping
+from typing import Any
 
 import can
+import msgspec
 
-CMD_STOP, CMD_UP, CMD_DOWN = 0, 1, 2
-NMT_BOOT, NMT_OPERATIONAL, NMT_PREOP = 0x00, 0x05, 0x7F
+from hubs.drivers import lift_can as driver
+from hubs.drivers.base import Driver
+from hubs.drivers.params import Positive
+from hubs.protocols.lift_can import (
+    CMD_DOWN,
+    CMD_STOP,
+    CMD_UP,
+    COB_COMMAND,
+    COB_HEARTBEAT,
+    COB_STATUS,
+    COMMAND_TIMEOUT_S,
+    DEFAULT_NODE,
+    FLAG_FAULT,
+    FLAG_LOWER,
+    FLAG_MOVING_DOWN,
+    FLAG_MOVING_UP,
+    FLAG_UPPER,
+    NMT_BOOT,
+    NMT_OPERATIONAL,
+    NMT_PREOP,
+    STATUS_FORMAT,
+)
+from hubs.sim.registry import InHubSimulator, SimulatedDevice, SimulatorPlugin
 
 
 class LiftSim:
     def __init__(
         self,
         channel: str,
-        node_id: int = 0x10,
+        node_id: int = DEFAULT_NODE,
         *,
         travel: float = 800.0,
         speed: float = 400.0,
         position: float = 0.0,
         status_period: float = 0.02,
         heartbeat_period: float = 0.1,
-        command_timeout: float = 0.5,
+        command_timeout: float = COMMAND_TIMEOUT_S,
     ) -> None:
         self.channel = channel
         self.node_id = node_id
@@ -102,7 +126,9 @@ class LiftSim:
     # -- the device ---------------------------------------------------------------------
 
     def _apply(self, msg: can.Message) -> None:
-        if msg.arbitration_id != 0x200 + self.node_id or msg.dlc < 2 or self.ignore_commands or self.preoperational:
+        if msg.arbitration_id != COB_COMMAND + self.node_id or msg.dlc < 2:
+            return
+        if self.ignore_commands or self.preoperational:
             return
         command, seq = msg.data[0], msg.data[1]
         with self._lock:
@@ -129,19 +155,19 @@ class LiftSim:
     def _status_frame(self) -> can.Message:
         with self._lock:
             flags = (
-                (0x01 if self.upper else 0)
-                | (0x02 if self.lower else 0)
-                | (0x04 if self.direction > 0 else 0)
-                | (0x08 if self.direction < 0 else 0)
-                | (0x80 if self.fault_code else 0)
+                (FLAG_UPPER if self.upper else 0)
+                | (FLAG_LOWER if self.lower else 0)
+                | (FLAG_MOVING_UP if self.direction > 0 else 0)
+                | (FLAG_MOVING_DOWN if self.direction < 0 else 0)
+                | (FLAG_FAULT if self.fault_code else 0)
             )
             data = struct.pack(
-                "<HBBBB", round(self.position), flags, self.fault_code & 0xFF, self.last_command, self.last_seq
+                STATUS_FORMAT, round(self.position), flags, self.fault_code & 0xFF, self.last_command, self.last_seq
             )
-        return can.Message(arbitration_id=0x180 + self.node_id, data=data, is_extended_id=False)
+        return can.Message(arbitration_id=COB_STATUS + self.node_id, data=data, is_extended_id=False)
 
     def _heartbeat(self, state: int) -> can.Message:
-        return can.Message(arbitration_id=0x700 + self.node_id, data=[state], is_extended_id=False)
+        return can.Message(arbitration_id=COB_HEARTBEAT + self.node_id, data=[state], is_extended_id=False)
 
     def _run(self, ready: threading.Event) -> None:
         bus = can.Bus(interface="virtual", channel=self.channel)
@@ -171,7 +197,7 @@ _SIMS: dict[tuple[str, int], LiftSim] = {}
 _SIMS_LOCK = threading.Lock()
 
 
-def ensure_lift(channel: str, node_id: int = 0x10, **kwargs: float) -> LiftSim:
+def ensure_lift(channel: str, node_id: int = DEFAULT_NODE, **kwargs: float) -> LiftSim:
     """The running simulated lift on ``channel`` (started with ``kwargs`` on first use)."""
     with _SIMS_LOCK:
         sim = _SIMS.get((channel, node_id))
@@ -179,3 +205,25 @@ def ensure_lift(channel: str, node_id: int = 0x10, **kwargs: float) -> LiftSim:
             sim = _SIMS[(channel, node_id)] = LiftSim(channel, node_id, **kwargs)
     sim.start()
     return sim
+
+
+# --- as a simulator plugin (device type lift): python-can `virtual` connects one process's buses ----
+
+class LiftSimParams(driver.LiftParams, frozen=True, kw_only=True):
+    """The driver's parameters, plus the simulated lift's."""
+
+    sim_speed: Positive = 400.0  # mm/s
+    sim_travel: Positive = 800.0  # mm between the limit switches
+
+
+def _build(resource: str, params: LiftSimParams) -> Driver:
+    ensure_lift(params.channel, params.node_id, speed=params.sim_speed, travel=params.sim_travel)
+    return driver.build(resource, msgspec.structs.replace(params, interface="virtual"))
+
+
+def _world(device: SimulatedDevice) -> Mapping[str, Any]:
+    return {"sim_speed": 400.0 * device.speed}
+
+
+PLUGIN = SimulatorPlugin("CAN lift on a virtual bus", in_hub=InHubSimulator(LiftSimParams, _build, _world),
+                         defaults={"channel": "statehub-lift"})

@@ -31,22 +31,40 @@ the clock on every bus transfer, so no thread is needed and tests are determinis
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import random
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Annotated, Any
 
-# BANK=0 register addresses (the map the driver uses).
-IODIRA, IODIRB, IPOLA, IPOLB = 0x00, 0x01, 0x02, 0x03
-GPINTENA, GPINTENB, DEFVALA, DEFVALB = 0x04, 0x05, 0x06, 0x07
-INTCONA, INTCONB, IOCON, IOCON_ALT = 0x08, 0x09, 0x0A, 0x0B
-GPPUA, GPPUB, INTFA, INTFB = 0x0C, 0x0D, 0x0E, 0x0F
-INTCAPA, INTCAPB, GPIOA, GPIOB, OLATA, OLATB = 0x10, 0x11, 0x12, 0x13, 0x14, 0x15
-NREG = 0x16
-IOCON_BANK, IOCON_MIRROR, IOCON_SEQOP = 0x80, 0x40, 0x20
+import msgspec
+
+from hubs.drivers import nutrunner_mcp23017 as driver
+from hubs.drivers.base import Driver
+from hubs.drivers.params import NonNegative
+from hubs.protocols.mcp23017 import (
+    GPIOA,
+    GPIOB,
+    GPPUA,
+    INTCAPA,
+    INTCAPB,
+    INTFA,
+    INTFB,
+    IOCON,
+    IOCON_ALT,
+    IOCON_BANK,
+    IOCON_SEQOP,
+    IODIRA,
+    IODIRB,
+    IPOLA,
+    NREG,
+    OLATA,
+)
+from hubs.sim.registry import InHubSimulator, SimulatedDevice, SimulatorPlugin
 
 Clock = Callable[[], float]
 
@@ -372,3 +390,33 @@ def ensure_nutrunner(bus_number: int, address: int, **kwargs: object) -> Nutrunn
     if existing is not None:
         return existing
     return bus.add(address, NutrunnerStation(**kwargs))  # type: ignore[arg-type]
+
+
+# --- as a simulator plugin (device type nutrunner): inside the hub, there is no /dev/i2c here ------
+
+class NutrunnerSimParams(driver.NutrunnerParams, frozen=True, kw_only=True):
+    """The driver's parameters, plus the simulated tool's."""
+
+    sim_fail_probability: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0
+    sim_seed: int = 0
+    sim_spinup: NonNegative = 0.05
+    sim_tighten: NonNegative = 0.25
+    sim_reset: NonNegative = 0.02
+
+
+def _build(resource: str, params: NutrunnerSimParams) -> Driver:
+    ensure_nutrunner(params.bus, params.address, wiring=Wiring(**dataclasses.asdict(params.pins())),
+                     timing=NutrunnerTiming(params.sim_spinup, params.sim_tighten, params.sim_reset),
+                     fail_probability=params.sim_fail_probability, seed=params.sim_seed)
+    return driver.build(resource, params, bus_factory=sim_bus(params.bus).open)
+
+
+def _world(device: SimulatedDevice) -> Mapping[str, Any]:
+    timing = NutrunnerTiming()
+    return {"sim_seed": device.seed, "sim_fail_probability": device.failure_probability,
+            "sim_spinup": timing.spinup / device.speed, "sim_tighten": timing.tighten / device.speed,
+            "sim_reset": timing.reset / device.speed}
+
+
+PLUGIN = SimulatorPlugin("MCP23017 and nutrunner on a simulated I2C bus",
+                         in_hub=InHubSimulator(NutrunnerSimParams, _build, _world))

@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import base64
 import contextlib
-import hashlib
 import math
 import sys
 import time
@@ -38,21 +36,15 @@ from typing import Any
 
 from aiohttp import web
 
-API = "/api/v2.0.0"
-READY, PAUSE, EXECUTING, EMERGENCY_STOP = 3, 4, 5, 10
-STATE_TEXT = {3: "Ready", 4: "Pause", 5: "Executing", 10: "EmergencyStop"}
+from hubs.protocols.mir_rest import API, EMERGENCY_STOP, EXECUTING, PAUSE, READY, STATE_TEXT, auth_header
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
+
 KITTING_MISSION, KITTING_POSITION = "b9f4a0c2-5d1e-4a7e-9d3b-0c1a2b3c4d01", (2.0, 10.0)
 STATION_MISSION, STATION_POSITION = "b9f4a0c2-5d1e-4a7e-9d3b-0c1a2b3c4d02", (20.0, 10.0)
 DEFAULT_MISSIONS = {
     KITTING_MISSION: ("Go to kitting", KITTING_POSITION),
     STATION_MISSION: ("Go to station", STATION_POSITION),
 }
-
-
-def auth_header(username: str, password: str) -> str:
-    """The header value the MiR expects: Basic base64(user:sha256hex(password))."""
-    token = f"{username}:{hashlib.sha256(password.encode()).hexdigest()}"
-    return "Basic " + base64.b64encode(token.encode()).decode()
 
 
 @dataclass
@@ -289,6 +281,26 @@ async def _serve(host: str, port: int, speed: float) -> None:
         await asyncio.Event().wait()
     finally:
         await server.stop()
+
+
+# --- as a simulator plugin (device type mir) ------------------------------------------------------
+
+DEFAULT_PORT = 8080
+SIM_TARGETS = {  # the simulator's missions and map positions (hubs.toml's are the real robot's)
+    "missions": {"kitting": KITTING_MISSION, "station": STATION_MISSION},
+    "positions": {"kitting": list(KITTING_POSITION), "station": list(STATION_POSITION)},
+}
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    return SimServer(
+        python_module("hubs.sim.mir_rest", "--host", "127.0.0.1", "--port", "0", "--speed", f"{device.speed:g}"),
+        driver_params=lambda address: {**tcp_params(address), "username": "admin", "password": "admin",
+                                       **SIM_TARGETS})
+
+
+PLUGIN = SimulatorPlugin("MiR REST API", server=_server,
+                         defaults={"host": "127.0.0.1", "port": DEFAULT_PORT, **SIM_TARGETS})
 
 
 def main(argv: list[str] | None = None) -> int:

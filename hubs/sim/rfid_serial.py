@@ -28,22 +28,16 @@ import time
 import tty
 from pathlib import Path
 
-STX, ETX = b"\x02", b"\x03"
-
-
-def checksum(tag: str) -> int:
-    value = 0
-    for byte in bytes.fromhex(tag):
-        value ^= byte
-    return value
+from hubs.protocols.em4100 import ETX, STX, TAG_CHARS, checksum
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module
 
 
 def frame(tag: str, *, corrupt: bool = False) -> bytes:
     tag = tag.upper()
-    if len(tag) != 10:
-        raise ValueError("an EM4100 tag is 10 hex characters")
-    check = checksum(tag) ^ (0x5A if corrupt else 0)
-    return STX + f"{tag}{check:02X}".encode("ascii") + b"\r\n" + ETX
+    if len(tag) != TAG_CHARS:
+        raise ValueError(f"an EM4100 tag is {TAG_CHARS} hex characters")
+    check = checksum(bytes.fromhex(tag)) ^ (0x5A if corrupt else 0)
+    return bytes([STX]) + f"{tag}{check:02X}".encode("ascii") + b"\r\n" + bytes([ETX])
 
 
 class RfidReaderSim:
@@ -115,6 +109,22 @@ class RfidReaderSim:
 
     def __exit__(self, *exc: object) -> None:
         self.stop(remove_link=True)
+
+
+# --- as a simulator plugin (device type rfid) --------------------------------------------------
+
+OPERATOR_TAG = "5A0017C3E1"  # the simulated operator's badge, the one the sim world presents
+
+
+def _server(device: SimulatedDevice) -> SimServer:
+    link = device.run_dir.resolve() / f"{device.resource}.tty"
+    return SimServer(python_module("hubs.sim.rfid_serial", "--link", str(link)), ready=r"^(\S+)$",
+                     driver_params=lambda _path: {"serial_port": str(link),
+                                                  "operators": {OPERATOR_TAG: "simulated operator"}},
+                     control=True, files=(link,))
+
+
+PLUGIN = SimulatorPlugin("RFID reader", server=_server)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,24 +9,16 @@ runs the physics lazily from the clock on every request.  Runs in-process (async
 
 (``--port 0`` picks a free port; the first line printed is ``listening on HOST:PORT``.)
 
-Coupler I/O map, unit/device id 1 (the drivers' defaults, documented in their modules):
+The coupler's I/O map is ``hubs.protocols.coupler`` (coils 0-1 lock/unlock solenoid,
+discrete inputs 0-5 tool changer, 8-10 dock slots, unit id 1). The simulator adds a side
+channel for a robot simulator, the simulated cell (``hubs.sim.cell``) and tests:
 
 =========  ====  =============================================================
 table      addr  signal
 =========  ====  =============================================================
-coil       0     RSP *lock* valve solenoid
-coil       1     RSP *unlock* valve solenoid
-discrete   0     RSP piston in *locked* position
-discrete   1     RSP piston in *unlocked* position
-discrete   2     air pressure OK (pressure switch)
-discrete   3     tool present on the tool plate
-discrete   4-5   tool code (bit 0, bit 1): 1 nutrunner, 2 lift_tool, 3 filter_tool
-discrete   8     dock slot 1 occupied (nutrunner home)
-discrete   9     dock slot 2 occupied (lift_tool home)
-discrete   10    dock slot 3 occupied (filter_tool home)
-holding    0     SIMULATOR ONLY: robot flange position, 0 = away, n = at dock slot n
-holding    1     SIMULATOR ONLY: air supply on (1) / off (0)
-holding    2     SIMULATOR ONLY: tools the operator takes by hand (bit n-1: the tool of slot n)
+holding    0     robot flange position, 0 = away, n = at dock slot n
+holding    1     air supply on (1) / off (0)
+holding    2     tools the operator takes by hand (bit n-1: the tool of slot n)
 =========  ====  =============================================================
 
 Physics: the piston moves only with air pressure, toward *locked* while only the lock
@@ -55,10 +47,22 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-TOOLS = ("nutrunner", "lift_tool", "filter_tool")  # tool code n+1, dock slot n+1
-COIL_LOCK, COIL_UNLOCK = 0, 1
-DI_LOCKED, DI_UNLOCKED, DI_PRESSURE, DI_PRESENT, DI_CODE0, DI_CODE1 = 0, 1, 2, 3, 4, 5
-DI_DOCK = 8
+from hubs.protocols.coupler import (
+    COIL_LOCK,
+    COIL_UNLOCK,
+    DEVICE_ID,
+    DI_CODE0,
+    DI_CODE1,
+    DI_DOCK,
+    DI_LOCKED,
+    DI_PRESENT,
+    DI_PRESSURE,
+    DI_UNLOCKED,
+    TOOLS,
+)
+from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module, tcp_params
+
+DEFAULT_PORT = 5020  # the simulator's when run alone (a real coupler listens on 502)
 HR_FLANGE, HR_AIR, HR_HAND = 0, 1, 2
 N_BITS = 32  # two 16-bit words per bit table
 FC_READ_COILS, FC_WRITE_COIL, FC_WRITE_COILS = 1, 5, 15
@@ -296,13 +300,28 @@ async def _serve(host: str, port: int, holding: str | None, stroke_time: float) 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Simulated Modbus TCP coupler with RSP tool changer and tool dock")
     parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port (0: any free port)")
     parser.add_argument("--holding", choices=TOOLS, help="start with this tool coupled and locked")
     parser.add_argument("--stroke-time", type=float, default=0.15, help="s per piston stroke (0.15)")
     args = parser.parse_args(argv)
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(_serve(args.host, args.port, args.holding, args.stroke_time))
     return 0
+
+
+# --- as a simulator plugin (device types rsp and dock) -------------------------------------------
+
+def _coupler(device: SimulatedDevice) -> SimServer:
+    # A dock is wired to its tool changer's coupler: both name the same process.
+    changer = device.model.get("changer") if device.device_type == "dock" else None
+    return SimServer(
+        python_module("hubs.sim.toolchanger_modbus", "--host", "127.0.0.1", "--port", "0",
+                      "--stroke-time", f"{max(0.05, 0.15 / device.speed):.4f}"),
+        driver_params=lambda address: {**tcp_params(address), "device_id": DEVICE_ID},
+        name=f"coupler-{changer or device.resource}")
+
+
+PLUGIN = SimulatorPlugin("Modbus coupler", server=_coupler, defaults={"host": "127.0.0.1", "port": DEFAULT_PORT})
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ third pose on the way (the model's `move_to` ability has no such step).
 `check_pose_table` verifies exactly that, with a margin; `pose_table` draws targets
 again (with a salt) until it holds.
 
-The home pose is the fake's start position (`hubs.sim.ur_rtde_fake.HOME_Q`): the model
+The home pose is the fake's start position (`hubs.sim.ur_robot.HOME_Q`): the model
 starts with the robot at home.
 """
 
@@ -24,7 +24,7 @@ import random
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
 
-from hubs.sim.ur_rtde_fake import HOME_Q
+from hubs.sim.ur_robot import HOME_Q
 
 Joints = tuple[float, ...]
 SPREAD = 0.5  # rad around home, per joint: a move takes well under a second at 1.05 rad/s

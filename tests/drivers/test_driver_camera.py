@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.camera_tracker import CameraTracker, parse_frame, parse_rects, zone_of
 from hubs.drivers.reconnect import Backoff
+from hubs.factory import make_driver
 from hubs.sim.camera_tracker import CameraTrackerSim
 
 REPO = Path(__file__).resolve().parents[2]

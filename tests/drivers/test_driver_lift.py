@@ -10,10 +10,10 @@ import can
 import pytest
 from drvtest import Connect, eventually, read_until
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.lift_can import LiftCan
 from hubs.drivers.reconnect import Backoff
+from hubs.factory import make_driver
 from hubs.sim.lift_can import LiftSim
 
 FAST = Backoff(initial=0.02, maximum=0.2)
@@ -67,14 +67,20 @@ async def test_safe_state_stops_motion_and_keeps_ref(driver: LiftCan, lift: Lift
     lift.speed = 200.0
     await driver.write({"ref_c": "up"})
     await read_until(driver, pos_m="between")
-    assert driver.safe_state() == {}
-    await driver.write({"ref_c": "up"})  # the hub re-writes the applied command with the safe values
+    assert await driver.enter_safe_state() == {}  # ref_c keeps its value, the lift stops
     await eventually(lambda: lift.direction == 0 and lift.last_command == 0)
     position = lift.position
     await asyncio.sleep(0.3)  # the stop is repeated: it stays stopped
     assert lift.position == position and lift.direction == 0
     lift.speed = 2000.0
-    await driver.write({"ref_c": "up"})  # the controller is back: resume
+    await driver.write({"ref_c": "up"})  # the controller is back: its first command resumes
+    await read_until(driver, pos_m="up")
+
+
+async def test_the_first_command_after_the_safe_state_moves_at_once(driver: LiftCan, lift: LiftSim) -> None:
+    await read_until(driver, pos_m="down")
+    assert await driver.enter_safe_state() == {}
+    await driver.write({"ref_c": "up"})  # no write after the safe state is taken for the hub's own
     await read_until(driver, pos_m="up")
 
 

@@ -10,10 +10,10 @@ import httpx
 import pytest
 from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.mir_rest import MirRest
 from hubs.drivers.reconnect import Backoff
+from hubs.factory import make_driver
 from hubs.sim import mir_rest as sim
 from hubs.sim.mir_rest import MirRobot, MirServer
 
@@ -61,8 +61,7 @@ async def test_goto_none_stops_and_resume(driver: MirRest, mir: MirServer) -> No
     mir.robot.speed = 2.0
     await driver.write({"goto_c": "station"})
     await eventually(lambda: mir.robot.update() or mir.robot.x > 3.0)  # well away from the kitting area
-    assert driver.safe_state() == {"goto_c": "none"}
-    await driver.write(driver.safe_state())
+    assert await driver.enter_safe_state() == {"goto_c": "none"}
     await eventually(lambda: mir.robot.state_id == sim.PAUSE)
     x = mir.robot.x
     await asyncio.sleep(0.2)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 from drvtest import Connect, eventually, read_until
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.nutrunner_mcp23017 import NutrunnerMcp23017, Pins
 from hubs.drivers.reconnect import Backoff
+from hubs.factory import make_driver
 from hubs.sim import mcp23017 as sim
 from hubs.sim.mcp23017 import NutrunnerStation, SimI2CBus
 
@@ -86,9 +86,8 @@ async def test_tightening_cycle(driver: NutrunnerMcp23017) -> None:
     await driver.write({"run_c": True})
     await read_until(driver, run_m=True)
     await read_until(driver, run_m=True, tqr_m=True, fail_m=False)
-    await driver.write({"run_c": False})
+    assert await driver.enter_safe_state() == {"run_c": False}  # drives the run output low
     await read_until(driver, run_m=False, tqr_m=False, fail_m=False)
-    assert driver.safe_state() == {"run_c": False}
 
 
 async def test_failed_tightening(bus: SimI2CBus) -> None:

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from drvtest import Connect, eventually, read_until, simulator_process
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.reconnect import Backoff
 from hubs.drivers.rfid_serial import RfidSerial, parse_body
+from hubs.factory import make_driver
 from hubs.sim.rfid_serial import RfidReaderSim, frame
 
 REPO = Path(__file__).resolve().parents[2]

@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 from pathlib import Path
 
 import pytest
 from drvtest import Connect, Serve, eventually, read_until, simulator_process
 from pymodbus.client import AsyncModbusTcpClient
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.dock_modbus import DockModbus
 from hubs.drivers.reconnect import Backoff
 from hubs.drivers.rsp_modbus import RspModbus
+from hubs.factory import make_driver
 from hubs.sim.toolchanger_modbus import ToolChangerPhysics, ToolChangerServer
 
 REPO = Path(__file__).resolve().parents[2]
@@ -48,8 +47,8 @@ async def test_pick_and_place_a_tool(coupler: ToolChangerServer, rsp: RspModbus,
     assert (await dock.read())["nutrunner_home_m"]  # still in the slot until the robot leaves
     coupler.physics.move_flange(0)
     await read_until(dock, nutrunner_home_m=False, lift_tool_home_m=True)
-    assert rsp.safe_state() == {}  # never drop the tool
-    await rsp.write({"lock_c": True})  # the hub's write while entering the safe state: no change
+    assert await rsp.enter_safe_state() == {}  # never drop the tool
+    await read_until(rsp, locked_m=True, tool_m="nutrunner")
     coupler.physics.move_flange(1)
     await rsp.write({"lock_c": False})
     await read_until(rsp, locked_m=False, tool_m="none")
@@ -148,9 +147,7 @@ async def test_hub_restart_never_unlocks(coupler: ToolChangerServer) -> None:
     drv = make_driver("rsp", "rsp", "sim", {"port": coupler.port, "reconnect_min": 0.02, "timeout": 0.5})
     await drv.connect()
     try:
-        assert drv.safe_state() == {}
-        with contextlib.suppress(DeviceUnavailable):
-            await drv.write({"lock_c": False})  # what the hub runtime writes at start
+        assert await drv.enter_safe_state() == {}  # what the hub runtime does at start: nothing moves
         await read_until(drv, locked_m=True, tool_m="lift_tool")
         assert (await drv.selftest()).ok
         await asyncio.sleep(0.1)

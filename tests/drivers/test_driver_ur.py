@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import os
 from collections.abc import Iterator
@@ -12,9 +11,9 @@ import pytest
 from drvtest import Connect, eventually, read_until
 from ur_fake import HOME, FakeUr, ur_params
 
-from hubs.drivers import make_driver
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.ur_rtde import Pose, UrRtde, rotation_between
+from hubs.factory import make_driver
 
 # A loopback address per fake (RTDE and dashboard ports are fixed); the second octet keeps concurrent
 # test runs on one machine apart.
@@ -84,8 +83,7 @@ async def test_protective_stop_reported_and_unlocked(fake: FakeUr) -> None:
 async def test_safe_state_stops_the_robot_and_keeps_the_reference(ur: UrRtde, fake: FakeUr) -> None:
     await ur.write({"ref_pos_c": "at_bolt1"})
     await eventually(lambda: fake.command(cmd="state")["moving"])
-    assert ur.safe_state() == {}
-    await ur.write({"ref_pos_c": "at_bolt1"})  # the hub re-writes the applied command with the safe values
+    assert await ur.enter_safe_state() == {}
     await eventually(lambda: not fake.command(cmd="state")["moving"])
     q = fake.command(cmd="state")["q"]
     await asyncio.sleep(0.5)  # held: no re-issue while the controller is silent
@@ -95,15 +93,13 @@ async def test_safe_state_stops_the_robot_and_keeps_the_reference(ur: UrRtde, fa
 
 
 async def test_hub_start_never_moves_the_robot(fake: FakeUr) -> None:
-    """The hub starts in the safe state and writes the initial command (home): the robot stays put."""
+    """The hub starts in the safe state and writes nothing else: the robot stays put until a command."""
     fake.command(cmd="movej", q=[0.6, -1.5708, 1.5708, -1.5708, -1.5708, 0.0], speed=10)
     drv = make_driver("ur", "ur", "sim", ur_params(fake.host))
     assert isinstance(drv, UrRtde)
     await drv.connect()
     try:
-        assert drv.safe_state() == {}
-        with contextlib.suppress(DeviceUnavailable):
-            await drv.write({"ref_pos_c": "home"})
+        assert await drv.enter_safe_state() == {}  # what the hub runtime does at start
         assert await drv.link.wait_connected(15)
         await read_until(drv, pos_m="at_bolt1")
         await asyncio.sleep(0.5)

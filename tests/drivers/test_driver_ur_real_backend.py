@@ -19,8 +19,8 @@ import pytest
 from drvtest import Connect, eventually, read_until
 from ur_fake import HOME, FakeUr, ur_params
 
-from hubs.drivers import make_driver
 from hubs.drivers.ur_rtde import UrRtde
+from hubs.factory import make_driver
 
 
 def _receive_probe(conn: Connection, host: str) -> None:
@@ -95,8 +95,7 @@ async def test_real_backend_moves_through_rtde_control(ur: UrRtde, fake: FakeUr)
 async def test_real_backend_stop_protective_stop_and_script_reupload(ur: UrRtde, fake: FakeUr) -> None:
     await ur.write({"ref_pos_c": "at_bolt1"})
     await read_until(ur, pos_m="at_bolt1")
-    ur.safe_state()  # stopJ + dashboard "stop": the control script ends
-    await ur.write({"ref_pos_c": "at_bolt1"})  # the hub's write with the safe values: stays stopped
+    await ur.enter_safe_state()  # stopJ + dashboard "stop": the control script ends
     await eventually(lambda: not fake.command(cmd="state")["script_running"])
     await ur.write({"ref_pos_c": "home"})  # the script is uploaded again, then moveJ
     await read_until(ur, pos_m="home")
