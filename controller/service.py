@@ -19,7 +19,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterable
 
-from common.bus import Bus, Keys, Sample
+from common.bus import Bus, Sample
 from common.config import StationConfig
 from common.ctl import LoopStats, OperationInfo, PlanStepInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
 from common.messages import Codec, HubStatus, MessageError, encode
@@ -77,7 +77,7 @@ class ControllerService:
         self.config = config
         self.model = model
         self.bus = bus
-        self.keys = Keys(config.station.name)
+        self.keys = config.keys
         self.controller_id = f"{config.controller.name}-{uuid.uuid4().hex[:8]}"
         supervisor = synthesize(model)
         self.compiled = CompiledModel(model, supervisor.guards)
