@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import inspect
-import socket
 import time
 import uuid
 from collections.abc import AsyncIterator
@@ -21,16 +20,11 @@ import pytest
 from common.bus import Bus, BusClosed, LivelinessEvent, Reply, Request, Sample, Subscription
 from common.keys import KeyExprError
 from common.membus import MemoryBus, MemoryHub, intersects, key_chunks
+from common.process import free_port
 from common.zenoh_config import loopback_endpoint, zenoh_config
 from common.zenohbus import ZenohBus
 
 STARTUP = 20.0  # generous bound for zenoh peers to link on a loaded machine
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Network:
