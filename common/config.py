@@ -62,6 +62,7 @@ from typing import Annotated, Any, Literal, TypeVar
 import msgspec
 
 from common.keylines import KeyLines
+from common.keys import Keys, station_keys
 from common.model import Model
 from common.stations import ModelLoadError, load_model
 
@@ -126,6 +127,11 @@ class StationConfig(msgspec.Struct, frozen=True):
     network: NetworkConfig
     controller: ControllerConfig
     hubs: dict[str, HubConfig]
+
+    @property
+    def keys(self) -> Keys:
+        """The station's key expressions."""
+        return station_keys(self.station.name)
 
     @property
     def resources(self) -> dict[str, HubConfig]:

@@ -30,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
                          fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False) -> int:
-    from common.bus import Bus, zenoh_config_for
+    from common.zenoh_config import zenoh_config_for
+    from common.zenohbus import ZenohBus
 
     from .service import ControllerService
 
@@ -40,7 +41,7 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
         for suffix in ("", "-wal", "-shm"):
             Path(db_path + suffix).unlink(missing_ok=True)
     stop = stop_on_signals()
-    async with Bus(zenoh_config_for(network(config, "controller", loopback_port))) as bus:
+    async with ZenohBus(zenoh_config_for(network(config, "controller", loopback_port))) as bus:
         service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold)
         logging.getLogger("statehub.controller").info(
             "controller %s: station %s, %d resources, %d operations", service.controller_id,

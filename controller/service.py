@@ -19,7 +19,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterable
 
-from common.bus import Bus, Keys, Sample
+from common.bus import Bus, Sample
 from common.config import StationConfig
 from common.ctl import (
     HubAlive,
@@ -88,7 +88,7 @@ class ControllerService:
         self.config = config
         self.model = model
         self.bus = bus
-        self.keys = Keys(config.station.name)
+        self.keys = config.keys
         self.controller_id = f"{config.controller.name}-{uuid.uuid4().hex[:8]}"
         stack = build_controller_stack(model)
         self.compiled = stack.compiled

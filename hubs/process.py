@@ -69,7 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
                   seed: int = 0, mode: str | None = None, failure: dict[str, float] | None = None,
                   overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
-    from common.bus import Bus, zenoh_config_for
+    from common.zenoh_config import zenoh_config_for
+    from common.zenohbus import ZenohBus
 
     from .factory import build_drivers
     from .runtime import HubRuntime
@@ -81,7 +82,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
                             overrides=overrides)
     stop = stop_on_signals()
-    async with Bus(zenoh_config_for(network(config, hub, loopback_port))) as bus:
+    async with ZenohBus(zenoh_config_for(network(config, hub, loopback_port))) as bus:
         runtime = HubRuntime(hub=hub, station=config.station.name, model=model, drivers=drivers, bus=bus,
                              rate_hz=settings.rate_hz, command_timeout_s=settings.command_timeout_s)
         logging.getLogger("statehub.hub").info("hub %s serving %s", hub, ", ".join(drivers))

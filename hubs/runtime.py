@@ -23,8 +23,9 @@ from typing import Any
 
 import msgspec
 
-from common.bus import Bus, Keys, Request
+from common.bus import Bus, Request
 from common.ctl import StateSnapshot
+from common.keys import station_keys
 from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 from common.model import Kind, Model, Value
 
@@ -55,7 +56,7 @@ class HubRuntime:
         self.hub = hub
         self.model = model
         self.bus = bus
-        self.keys = Keys(station)
+        self.keys = station_keys(station)
         self.period = 1.0 / rate_hz
         self.command_timeout = command_timeout_s
         self.slots = {name: ResourceSlot(name, d, Codec(model.resource_by_name[name])) for name, d in drivers.items()}

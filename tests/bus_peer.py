@@ -19,14 +19,16 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from common.bus import Bus, Request, zenoh_config
+from common.bus import Request
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 
 
 def say(line: str) -> None:
     print(line, flush=True)
 
 
-async def wait_for_parent(bus: Bus, prefix: str) -> None:
+async def wait_for_parent(bus: ZenohBus, prefix: str) -> None:
     async with bus.watch_liveliness(f"{prefix}/parent") as watch:
         async for event in watch:
             if event.alive:
@@ -34,7 +36,7 @@ async def wait_for_parent(bus: Bus, prefix: str) -> None:
 
 
 async def main(role: str, endpoint: str, prefix: str, *args: str) -> None:
-    async with Bus(zenoh_config("peer", listen=[], connect=[endpoint])) as bus:
+    async with ZenohBus(zenoh_config("peer", listen=[], connect=[endpoint])) as bus:
         if role == "alive":
             bus.declare_liveliness(f"{prefix}/hub/{args[0]}/alive")
             await wait_for_parent(bus, prefix)

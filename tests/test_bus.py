@@ -21,8 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Bus, BusClosed, KeyExprError, Keys, LivelinessEvent, Request, Sample, _Inbox, zenoh_config
+from common.bus import Bus, BusClosed, LivelinessEvent, Request, Sample
+from common.inbox import Inbox
+from common.keys import KeyExprError, Keys
 from common.process import free_port
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 
 PEER = Path(__file__).with_name("bus_peer.py")
 STARTUP = 20.0  # generous bound for a peer to start and connect on a loaded machine
@@ -65,7 +69,7 @@ def prefix() -> str:
 @pytest.fixture
 async def bus(prefix: str) -> AsyncIterator[tuple[Bus, Peers]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    async with Bus(zenoh_config("peer", listen=[endpoint])) as bus:
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint])) as bus:
         peers = Peers(endpoint, prefix)
         try:
             bus.declare_liveliness(f"{prefix}/parent")
@@ -148,7 +152,7 @@ async def test_slow_consumer_sees_only_the_newest_sample_per_key(bus: tuple[Bus,
 
 
 async def test_closing_ends_iteration() -> None:
-    async with Bus(zenoh_config("peer")) as b:
+    async with ZenohBus(zenoh_config("peer")) as b:
         sub = b.subscribe("nobody/*")
 
         async def consume() -> list[Sample]:
@@ -165,7 +169,7 @@ async def test_closing_ends_iteration() -> None:
 
 
 async def test_local_publish_reaches_local_subscriber() -> None:
-    async with Bus(zenoh_config("peer")) as b:
+    async with ZenohBus(zenoh_config("peer")) as b:
         sub = b.subscribe("local/*")
         b.publish("local/x", b"1")
         assert await asyncio.wait_for(sub.get(), 5) == Sample("local/x", b"1")
@@ -178,7 +182,7 @@ def sample(key: str, i: int) -> Sample:
 
 
 async def test_a_batch_holds_the_newest_sample_per_key_and_counts_the_replaced_ones() -> None:
-    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
+    inbox: Inbox[Sample] = Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
     for i in range(5):
         inbox.put("k/a", sample("k/a", i))
         inbox.put("k/b", sample("k/b", i))
@@ -192,7 +196,7 @@ async def test_a_batch_holds_the_newest_sample_per_key_and_counts_the_replaced_o
 
 
 async def test_an_uncoalesced_batch_holds_every_sample_in_order() -> None:
-    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=3)
+    inbox: Inbox[Sample] = Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=3)
     for i in range(5):
         inbox.put("k/a", sample("k/a", i))
     assert await inbox.get_batch() == [sample("k/a", i) for i in (2, 3, 4)]
@@ -200,7 +204,7 @@ async def test_an_uncoalesced_batch_holds_every_sample_in_order() -> None:
 
 
 async def test_a_waiting_consumer_is_woken_by_another_thread_and_by_closing() -> None:
-    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
+    inbox: Inbox[Sample] = Inbox(asyncio.get_running_loop(), coalesce=True, maxlen=None)
     consumer = asyncio.create_task(inbox.get_batch())
     await asyncio.sleep(0)
     await asyncio.to_thread(inbox.put, "k/a", sample("k/a", 1))
@@ -213,7 +217,7 @@ async def test_a_waiting_consumer_is_woken_by_another_thread_and_by_closing() ->
 
 
 async def test_batch_s_defers_the_next_wake_up_so_that_samples_join_one_batch() -> None:
-    inbox: _Inbox[Sample] = _Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=None, batch_s=60.0)
+    inbox: Inbox[Sample] = Inbox(asyncio.get_running_loop(), coalesce=False, maxlen=None, batch_s=60.0)
     inbox.put("k/a", sample("k/a", 0))
     assert await inbox.get_batch() == [sample("k/a", 0)]  # pending samples are handed out at once
     consumer = asyncio.create_task(inbox.get_batch())
@@ -227,7 +231,7 @@ async def test_batch_s_defers_the_next_wake_up_so_that_samples_join_one_batch() 
 
 
 async def test_batches_over_zenoh_keep_per_key_order_newest_wins() -> None:
-    async with Bus(zenoh_config("peer")) as b:
+    async with ZenohBus(zenoh_config("peer")) as b:
         sub = b.subscribe("batch/*", batch_s=0.5, expect=["batch/a", "batch/b"])
         everything = b.subscribe("batch/*", coalesce=False, maxlen=None)
         for i in range(1000):
@@ -310,7 +314,7 @@ async def test_hub_started_first_connects_and_reconnects_after_a_controller_rest
         await asyncio.sleep(0.5)  # nobody listens yet: the peer keeps retrying in the background
         key = f"{prefix}/hub/h4/alive"
         for _ in range(2):  # the controller comes up, then restarts
-            async with Bus(zenoh_config("peer", listen=[endpoint])) as b:
+            async with ZenohBus(zenoh_config("peer", listen=[endpoint])) as b:
                 b.declare_liveliness(f"{prefix}/parent")
                 watch = b.watch_liveliness(f"{prefix}/hub/*/alive")
                 assert await next_event(watch, STARTUP) == LivelinessEvent(key, True)
@@ -324,10 +328,10 @@ async def test_open_failures_are_reported() -> None:
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(ConnectionError, match="Address already in use"):
-            async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])):
+            async with ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])):
                 pass
     with pytest.raises(ConnectionError, match="Unable to connect"):
-        async with Bus(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port()}"]), open_timeout=0.2):
+        async with ZenohBus(zenoh_config("client", connect=[f"tcp/127.0.0.1:{free_port()}"]), open_timeout=0.2):
             pass
 
 
@@ -344,7 +348,7 @@ async def test_get_from_a_queryable_in_another_process(bus: tuple[Bus, Peers], p
 
 
 async def test_local_queryable_replies_errors_and_silence() -> None:
-    async with Bus(zenoh_config("peer")) as b:
+    async with ZenohBus(zenoh_config("peer")) as b:
         async def handler(request: Request) -> bytes | list[tuple[str, bytes]] | None:
             await asyncio.sleep(0)  # handlers run on the loop and may await
             if request.parameters == "fail=1":

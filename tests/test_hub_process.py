@@ -15,11 +15,14 @@ import msgspec
 import pytest
 from hub_process import HubProcess
 
-from common.bus import Bus, Keys, zenoh_config
+from common.bus import Bus
 from common.config import load_station
+from common.keys import station_keys
 from common.messages import Codec, HubStatus, decode
 from common.process import free_port
 from common.selftest import SelftestMessage
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hubs.toml"
@@ -28,7 +31,7 @@ CONFIG = ROOT / "hubs.toml"
 class HubUnderTest:
     def __init__(self, bus: Bus, hub: HubProcess, station: str) -> None:
         self.bus, self.process = bus, hub
-        self.keys = Keys(station)
+        self.keys = station_keys(station)
         _, model = load_station(CONFIG)
         self.codec = Codec(model.resource_by_name["nr"])
         self.states = bus.subscribe(self.keys.state("nr"), coalesce=False)
@@ -56,8 +59,9 @@ class HubUnderTest:
 async def hub(hub_process: Callable[..., HubProcess]) -> AsyncIterator[HubUnderTest]:
     port = free_port()
     config, _ = load_station(CONFIG)
-    async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], lease_ms=config.network.lease_ms)) as bus:
-        alive = bus.watch_liveliness(Keys(config.station.name).alive("pi-tool"))
+    listen = [f"tcp/127.0.0.1:{port}"]
+    async with ZenohBus(zenoh_config("peer", listen=listen, lease_ms=config.network.lease_ms)) as bus:
+        alive = bus.watch_liveliness(config.keys.alive("pi-tool"))
         process = hub_process(CONFIG, "pi-tool", port, "--speed", "4")
         event = await asyncio.wait_for(alive.get(), 15)
         assert event.alive

@@ -13,10 +13,13 @@ import sys
 import pytest
 from deploy_support import REPO, station_toml
 
-from common.bus import Bus, Keys, Request, zenoh_config, zenoh_config_for
+from common.bus import Bus, Request
 from common.config import parse_config
+from common.keys import station_keys
 from common.messages import encode
 from common.process import free_port
+from common.zenoh_config import zenoh_config, zenoh_config_for
+from common.zenohbus import ZenohBus
 from deploy.remote.deploy import Waiting, wait_step
 from deploy.remote.hubwait import HubWaitError, HubWatch, watch_config, watch_endpoints
 from deploy.remote.progress import Progress, StepFailed
@@ -35,7 +38,7 @@ def report(ok: bool) -> bytes:
 
 async def start_hub(bus: Bus, station: str, payload: bytes) -> None:
     """What hubs/runtime.py does at start: token, then the self-test report (published and queryable)."""
-    keys = Keys(station)
+    keys = station_keys(station)
     bus.declare_liveliness(keys.alive("pi-tool"))
     bus.publish(keys.selftest("pi-tool"), payload, block=True)
 
@@ -53,11 +56,11 @@ def station():
 
 async def test_the_restarted_hub_is_seen_with_its_report(station):
     endpoint, config = station
-    async with Bus(zenoh_config("peer", listen=[endpoint])):  # the controller
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint])):  # the controller
         zconfig = watch_config(config, "pi-tool", listen="tcp/127.0.0.1:0")
-        async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
+        async with ZenohBus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
             watch.restarted()
-            async with Bus(zenoh_config_for(config.network_for("pi-tool"))) as hub:
+            async with ZenohBus(zenoh_config_for(config.network_for("pi-tool"))) as hub:
                 await start_hub(hub, config.station.name, report(ok=True))
                 seen = await watch.wait(timeout=20)
     assert seen.hub == "pi-tool" and seen.ok and [d.resource for d in seen.devices] == ["nr"]
@@ -66,11 +69,11 @@ async def test_the_restarted_hub_is_seen_with_its_report(station):
 async def test_a_failed_self_test_fails_the_step(station):
     endpoint, config = station
     progress = Progress(1)
-    async with Bus(zenoh_config("peer", listen=[endpoint])):
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint])):
         zconfig = watch_config(config, "pi-tool", listen="tcp/127.0.0.1:0")
-        async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
+        async with ZenohBus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
             watch.restarted()
-            async with Bus(zenoh_config_for(config.network_for("pi-tool"))) as hub:
+            async with ZenohBus(zenoh_config_for(config.network_for("pi-tool"))) as hub:
                 await start_hub(hub, config.station.name, report(ok=False))
                 with pytest.raises(StepFailed) as failed:
                     await wait_step(progress, watch, "pi-tool", Waiting(timeout=20))
@@ -81,9 +84,9 @@ async def test_a_failed_self_test_fails_the_step(station):
 
 async def test_a_hub_that_never_comes_says_so(station):
     endpoint, config = station
-    async with Bus(zenoh_config("peer", listen=[endpoint])):
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint])):
         zconfig = watch_config(config, "pi-tool", listen="tcp/127.0.0.1:0")
-        async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
+        async with ZenohBus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
             watch.restarted()
             with pytest.raises(HubWaitError) as failed:
                 await watch.wait(timeout=1.5)
@@ -98,9 +101,9 @@ async def test_a_real_hub_process_is_seen(station, tmp_path):
     endpoint, config = station
     path = tmp_path / "hubs.toml"
     path.write_text(station_toml(connect=[endpoint]))
-    async with Bus(zenoh_config("peer", listen=[endpoint])):
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint])):
         zconfig = watch_config(config, "pi-tool", listen="tcp/127.0.0.1:0")
-        async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
+        async with ZenohBus(zconfig) as bus, HubWatch(bus, config.station.name, "pi-tool") as watch:
             watch.restarted()
             hub = await asyncio.create_subprocess_exec(
                 sys.executable, "-m", "hubs", "pi-tool", "--config", str(path), cwd=REPO,

@@ -12,9 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Bus, Keys, Sample, zenoh_config
+from common.bus import Sample
 from common.config import load_station
 from common.messages import HubStatus
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 from controller.service import ControllerService
 
 STATION = Path(__file__).resolve().parent / "fault_station" / "hubs.toml"
@@ -23,7 +25,7 @@ STATION = Path(__file__).resolve().parent / "fault_station" / "hubs.toml"
 @pytest.fixture
 async def service(tmp_path: Path) -> AsyncIterator[ControllerService]:
     config, model = load_station(STATION)
-    async with Bus(zenoh_config("peer")) as bus:
+    async with ZenohBus(zenoh_config("peer")) as bus:
         service = ControllerService(config, model, bus, db=str(tmp_path / "controller.sqlite"),
                                     planner_process=False)
         try:
@@ -41,7 +43,7 @@ def nr_state(service: ControllerService, run_m: bool | None, seq: int) -> bytes:
 
 async def test_a_batch_is_merged_and_a_malformed_state_is_dropped_and_logged_once(
         service: ControllerService, caplog: pytest.LogCaptureFixture) -> None:
-    keys = Keys(service.config.station.name)
+    keys = service.config.keys
     routes = service._state_routes()
     assert set(routes) == {keys.state("nr"), keys.state("ur")}
     index = service.compiled.index
@@ -66,7 +68,7 @@ async def test_a_batch_is_merged_and_a_malformed_state_is_dropped_and_logged_onc
 
 async def test_an_unknown_value_keeps_the_last_known_one_and_no_change_asks_for_no_tick(
         service: ControllerService) -> None:
-    keys = Keys(service.config.station.name)
+    keys = service.config.keys
     routes = service._state_routes()
     index = service.compiled.index
     service._ingest_batch([Sample(keys.state("nr"), nr_state(service, True, 1))], routes)

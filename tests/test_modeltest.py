@@ -28,12 +28,13 @@ from pathlib import Path
 import pytest
 from hub_process import HubProcess, running_hub
 
-from common.bus import Keys, zenoh_config
 from common.config import load_station
+from common.keys import Keys, station_keys
 from common.messages import Codec
 from common.model import Model, Phase, Resource, ability, command, measured
 from common.process import free_port
 from common.resources import nutrunner
+from common.zenoh_config import zenoh_config
 from deploy.modeltest import ModelTestFailed, Options, ResourceOracle, Target, model_based_test, run_model_test
 from deploy.modeltest.checker import EFFECT_NOT_OBSERVED, UNEXPLAINED_CHANGE, Checker, Observation, Violation
 from deploy.modeltest.cli import Refused, select_resources
@@ -221,7 +222,7 @@ test_emulated_tool_changer = pytest.mark.usefixtures("emulated_hub")(model_based
 @pytest.mark.usefixtures("emulated_hub")
 def test_a_controller_that_starts_commanding_during_the_test_stops_it() -> None:
     target = emulated_target()
-    codec, keys, bus = Codec(target.model.resource_by_name["nr"]), Keys(target.station), target.bus()
+    codec, keys, bus = Codec(target.model.resource_by_name["nr"]), station_keys(target.station), target.bus()
     stop = threading.Event()
 
     def command_after_a_second() -> None:

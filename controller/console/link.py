@@ -22,12 +22,14 @@ from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import msgspec
-import zenoh
 
-from common.bus import Bus, BusClosed, Keys, Sample, Subscription, zenoh_config
+from common.bus import Bus, BusError, Sample, Subscription
 from common.ctl import ConsoleReply, ConsoleRequest, StateSnapshot, StatusMessage
+from common.keys import station_keys
 from common.messages import Message, MessageError, decode, encode
 from common.selftest import SelftestMessage
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 
 log = logging.getLogger("statehub.console")
 
@@ -59,7 +61,7 @@ def origin() -> str:
 class ConsoleLink:
     def __init__(self, station: str, connect: Sequence[str], *, listen: Sequence[str] = ("tcp/0.0.0.0:0",),
                  lease_ms: int = 2000) -> None:
-        self.keys = Keys(station)
+        self.keys = station_keys(station)
         self.connect = list(connect)
         self.config = zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
@@ -76,7 +78,7 @@ class ConsoleLink:
         return self._bus is not None
 
     async def run(self) -> None:
-        async with Bus(self.config) as bus:
+        async with ZenohBus(self.config) as bus:
             self._bus = bus
             self._opened.set()
             subscriptions = [
@@ -104,7 +106,7 @@ class ConsoleLink:
             request = msgspec.structs.replace(request, origin=self.origin)
         try:
             replies = await bus.get(self.keys.ctl("request"), payload=encode(request), timeout=REQUEST_TIMEOUT_S)
-        except (zenoh.ZError, BusClosed) as exc:  # the session closing under us: an answer, not a crash
+        except BusError as exc:  # the session closing under us: an answer, not a crash
             return ConsoleReply(accepted=False, reason=f"the request could not be sent: {exc}")
         for reply in replies:
             if not reply.ok:

@@ -46,10 +46,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.bus import Bus, Keys, zenoh_config
+from common.bus import Bus
 from common.config import DeviceConfig, StationConfig, load_station
+from common.keys import Keys
 from common.messages import Codec
 from common.model import Model
+from common.zenoh_config import loopback_peer
+from common.zenohbus import ZenohBus
 from hubs.factory import effective_mode
 from hubs.protocols.coupler import TOOLS
 from hubs.protocols.ur import COMMAND_PORT
@@ -315,10 +318,8 @@ class SimWorld:
             self._spawn(flange.run(), f"flange {changer}")
         if self.loopback_port is None:
             return
-        self._bus = Bus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{self.loopback_port}"],
-                                     lease_ms=self.config.network.lease_ms))
-        await self._bus.open()
-        keys = Keys(self.config.station.name)
+        self._bus = await ZenohBus(loopback_peer(self.loopback_port, self.config.network.lease_ms)).open()
+        keys = self.config.keys
         for operator in (r.name for r in self.model.resources if r.device_type == "operator"):
             self._couple_operator(operator, keys, couplers)
         for resource in self._served("rfid"):

@@ -17,12 +17,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from common.bus import Bus, Keys, zenoh_config
 from common.config import StationConfig, load_station
 from common.ctl import StatusMessage
 from common.messages import MessageError, decode
 from common.model import OperationState
 from common.process import free_port
+from common.zenoh_config import loopback_peer
+from common.zenohbus import ZenohBus
 
 RUN_DIR = Path("var/up")
 STOP_GRACE_S = 5.0
@@ -168,7 +169,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     config, model = load_station(options.config)
     port = free_port()
     children = child_commands(config, options, port)
-    keys = Keys(config.station.name)
+    keys = config.keys
     say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
         f"on 127.0.0.1:{port}, devices {options.mode or 'as in ' + options.config}, speed x{options.speed}")
     say(f"  logs in {options.run_dir}/")
@@ -193,8 +194,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     result = 1
     last: StatusMessage | None = None
     try:
-        async with Bus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"],
-                                    lease_ms=config.network.lease_ms)) as bus:
+        async with ZenohBus(loopback_peer(port, config.network.lease_ms)) as bus:
             statuses = bus.subscribe(keys.ctl("status"))
             while True:
                 if stop.is_set():

@@ -86,7 +86,7 @@ def select_resources(config: StationConfig, model: Model, hub: str, wanted: list
 
 def open_bus(target: Target) -> tuple[BusThread, str]:
     """Listen where the controller would; if that address is taken, connect to it instead."""
-    from common.bus import zenoh_config
+    from common.zenoh_config import zenoh_config
 
     from .link import BusThread, LinkError
 

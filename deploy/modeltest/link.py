@@ -23,12 +23,13 @@ from collections.abc import Coroutine, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-import zenoh
-
-from common.bus import Bus, Keys, Subscription, zenoh_config
+from common.bus import Bus, Subscription
 from common.ctl import StatusMessage
+from common.keys import Keys, station_keys
 from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
 from common.model import Kind, Model, Value
+from common.zenoh_config import ZenohConfig, zenoh_config
+from common.zenohbus import ZenohBus
 
 log = logging.getLogger("statehub.modeltest")
 T = TypeVar("T")
@@ -42,7 +43,7 @@ class LinkError(RuntimeError):
 class BusThread:
     """One `Bus` on an event loop of its own thread, for synchronous callers."""
 
-    def __init__(self, config: zenoh.Config, *, description: str = "") -> None:
+    def __init__(self, config: ZenohConfig, *, description: str = "") -> None:
         self.config = config
         self.description = description
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -72,7 +73,7 @@ class BusThread:
     async def _run(self) -> None:
         self._stop = asyncio.Event()
         try:
-            async with Bus(self.config) as bus:
+            async with ZenohBus(self.config) as bus:
                 self._bus = bus
                 self._ready.set()
                 await self._stop.wait()
@@ -158,7 +159,7 @@ class ResourceLink:
     def __init__(self, bus: BusThread, station: str, model: Model, resource: str, *,
                  context: Iterable[str] = (), command_rate_hz: float = 10.0, controller_id: str | None = None) -> None:
         self.bus = bus
-        self.keys = Keys(station)
+        self.keys = station_keys(station)
         self.model = model
         self.resource = model.resource_by_name[resource]
         self.codec = Codec(self.resource)
@@ -357,12 +358,12 @@ def watch_controllers(bus: BusThread, station: str, model: Model, resources: Ite
                       own: str | None = None) -> dict[str, set[str]]:
     """Listen `seconds` for controllers other than `own`: each id, with the resources it commands
     (empty for a controller seen only by its status)."""
-    return bus.call(_watch_controllers(bus.bus, Keys(station), model, tuple(resources), seconds, own),
+    return bus.call(_watch_controllers(bus.bus, station_keys(station), model, tuple(resources), seconds, own),
                     timeout=seconds + 10.0)
 
 
 def alive_hubs(bus: BusThread, station: str, timeout: float = 1.0) -> set[str]:
     """The hubs of the station whose liveliness token is alive now."""
-    keys = Keys(station)
+    keys = station_keys(station)
     tokens = bus.call(bus.bus.alive_tokens(keys.all_alive, timeout=timeout), timeout + 5.0)
     return {hub for key in tokens if (hub := keys.hub_of(key)) is not None}

@@ -35,9 +35,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from common.bus import Bus
 from common.config import StationConfig, load_station
 from common.selftest import format_report
+from common.zenohbus import ZenohBus
 
 from . import scripts
 from .hubwait import DEFAULT_LISTEN, HubWaitError, HubWatch, watch_config
@@ -170,7 +170,7 @@ async def hub_watch(config: StationConfig, hub: str, waiting: Waiting) -> AsyncI
         yield None
         return
     zconfig = watch_config(config, hub, listen=waiting.listen, connect=list(waiting.connect) or None)
-    async with Bus(zconfig) as bus, HubWatch(bus, config.station.name, hub) as watch:
+    async with ZenohBus(zconfig) as bus, HubWatch(bus, config.station.name, hub) as watch:
         yield watch
 
 

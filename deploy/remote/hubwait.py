@@ -18,12 +18,12 @@ import asyncio
 import time
 from dataclasses import dataclass
 
-import zenoh
-
-from common.bus import Bus, Keys, LivelinessEvent, Sample, Subscription, zenoh_config
+from common.bus import Bus, LivelinessEvent, Sample, Subscription
 from common.config import StationConfig
+from common.keys import station_keys
 from common.messages import MessageError, decode
 from common.selftest import SelftestMessage
+from common.zenoh_config import ZenohConfig, zenoh_config
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:0"
 _WILDCARD_HOSTS = ("0.0.0.0", "[::]", "::")
@@ -50,7 +50,7 @@ def watch_endpoints(config: StationConfig, hub: str) -> list[str]:
 
 
 def watch_config(config: StationConfig, hub: str, *, listen: str = DEFAULT_LISTEN,
-                 connect: list[str] | None = None) -> zenoh.Config:
+                 connect: list[str] | None = None) -> ZenohConfig:
     net = config.network_for(hub)
     endpoints = connect or watch_endpoints(config, hub)
     if net.mode == "client":
@@ -65,7 +65,7 @@ class HubWatch:
     hub: str
 
     def __post_init__(self) -> None:
-        self.keys = Keys(self.station)
+        self.keys = station_keys(self.station)
         self._reports: Subscription[Sample] | None = None
         self._alive: Subscription[LivelinessEvent] | None = None
 

@@ -31,8 +31,9 @@ sys.path.insert(0, ROOT)
 
 import zenoh  # noqa: E402
 
-from common.bus import Bus, zenoh_config  # noqa: E402
 from common.process import free_port  # noqa: E402
+from common.zenoh_config import zenoh_config  # noqa: E402
+from common.zenohbus import ZenohBus  # noqa: E402
 
 PAYLOAD = bytes(64)
 BLOCK = zenoh.CongestionControl.BLOCK
@@ -82,7 +83,7 @@ def raw_peer(endpoint: str, express: bool) -> None:
 
 
 async def bus_peer(endpoint: str, express: bool) -> None:
-    async with Bus(zenoh_config("peer", connect=[endpoint]), express=express) as bus:
+    async with ZenohBus(zenoh_config("peer", connect=[endpoint]), express=express) as bus:
         pings = bus.subscribe("bench/ping", coalesce=False, maxlen=None)
         starts = bus.subscribe("bench/start", coalesce=False)
         floods = bus.subscribe("bench/flood", coalesce=False, maxlen=None)
@@ -172,7 +173,7 @@ def bench_raw(express: bool, rounds: int, flood: int) -> Result:
 
 async def bench_bus(express: bool, rounds: int, flood: int) -> Result:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    async with Bus(zenoh_config("peer", listen=[endpoint]), express=express) as bus:
+    async with ZenohBus(zenoh_config("peer", listen=[endpoint]), express=express) as bus:
         pongs = bus.subscribe("bench/pong", coalesce=False, maxlen=None)
         flooded = bus.subscribe("bench/flooded", coalesce=False)
         bus.declare_liveliness("bench/main")

@@ -46,8 +46,10 @@ sys.path.insert(0, str(HERE))
 
 from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
-from common.bus import Bus, Keys, zenoh_config  # noqa: E402
+from common.keys import station_keys  # noqa: E402
 from common.process import free_port  # noqa: E402
+from common.zenoh_config import zenoh_config  # noqa: E402
+from common.zenohbus import ZenohBus  # noqa: E402
 
 TICK_MEDIAN_LIMIT_MS = 5.0
 AGE_LIMIT_MS = 3 * 1000.0 / HUB_RATE_HZ
@@ -125,7 +127,7 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
     station = f"bench_{os.getpid()}_{uuid.uuid4().hex[:6]}"
     config = write_station(directory, station, resources)
     port = free_port()
-    keys = Keys(station)
+    keys = station_keys(station)
     env = {**ENV, RESOURCES_ENV: str(resources)}
     log = (directory / f"controller_{resources}.log").open("wb")
     controller = subprocess.Popen(
@@ -134,7 +136,7 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
     gens: list[subprocess.Popen[bytes]] = []
     try:
-        async with Bus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"])) as bus:
+        async with ZenohBus(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"])) as bus:
             statuses = bus.subscribe(keys.ctl("status"), coalesce=False, maxlen=None)
             for k, served in enumerate(generator_slices(resources)):
                 gens.append(subprocess.Popen(
@@ -245,11 +247,11 @@ async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> 
     config_path = directory / "hub.toml"
     config_path.write_text(text)
     config, model = load_station(config_path)
-    keys = Keys(config.station.name)
+    keys = config.keys
     codec = Codec(model.resource_by_name["nr"])
     port = free_port()
     log = (directory / "hub.log").open("wb")
-    async with Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])) as bus:
+    async with ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])) as bus:
         states = bus.subscribe(keys.state("nr"), coalesce=False, maxlen=None)
         alive = bus.watch_liveliness(keys.alive("pi-tool"))
         hub = subprocess.Popen([sys.executable, "-m", "hubs", "pi-tool", "--config", str(config_path),

@@ -22,9 +22,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.bus import Keys, zenoh_config
+from common.keys import station_keys
 from common.model import Model
 from common.resources import nutrunner
+from common.zenoh_config import zenoh_config
 
 RESOURCES_ENV = "STATEHUB_BENCH_RESOURCES"
 HUB_RATE_HZ = 50.0
@@ -70,7 +71,7 @@ def generator(endpoint: str, station: str, hub: str, resources: int, served: ran
 
     os.environ[RESOURCES_ENV] = str(resources)
     model = build_model()
-    keys = Keys(station)
+    keys = station_keys(station)
     codecs = [Codec(model.resources[i]) for i in served]
     session = zenoh.open(zenoh_config("peer", connect=[endpoint]))
     token = session.liveliness().declare_token(keys.alive(hub))

@@ -36,7 +36,6 @@ from typing import Any, TypeVar
 
 import msgspec
 
-from common.bus import Keys
 from common.config import load_station
 from common.process import free_port
 from tests.fault_station.watcher import Watcher
@@ -104,7 +103,7 @@ class Station:
         self.config_path = config or write_config(directory, replace=replace)
         self.hold = hold
         self.config, self.model = load_station(self.config_path)
-        self.keys = Keys(self.config.station.name)
+        self.keys = self.config.keys
         self.port = free_port()
         self.db = directory / "controller.sqlite"
         self.speed = speed

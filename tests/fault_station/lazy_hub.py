@@ -22,10 +22,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.bus import Bus, zenoh_config_for
 from common.config import load_station
 from common.messages import HubStatus, MessageError
 from common.process import network, setup_logging, stop_on_signals
+from common.zenoh_config import zenoh_config_for
+from common.zenohbus import ZenohBus
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime, ResourceSlot
 
@@ -62,7 +63,7 @@ async def main(args: argparse.Namespace) -> int:
     settings = config.hubs[args.hub]
     drivers = build_drivers(config, args.hub, model, speed=args.speed)
     stop = stop_on_signals()
-    async with Bus(zenoh_config_for(network(config, args.hub, args.loopback_port))) as bus:
+    async with ZenohBus(zenoh_config_for(network(config, args.hub, args.loopback_port))) as bus:
         runtime = LazyHubRuntime(hub=args.hub, station=config.station.name, model=model, drivers=drivers, bus=bus,
                                  rate_hz=settings.rate_hz, command_timeout_s=settings.command_timeout_s)
         runtime.apply = args.apply

@@ -18,11 +18,13 @@ from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from common.bus import Bus, Keys, Sample, zenoh_config
+from common.bus import Sample
 from common.config import StationConfig
 from common.ctl import StateSnapshot, StatusMessage
 from common.messages import Codec, MessageError, decode
 from common.model import Model
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 
 T = TypeVar("T")
 
@@ -48,7 +50,7 @@ class Watcher:
     """A Bus in a background thread: records the station's traffic, publishes for the test."""
 
     def __init__(self, config: StationConfig, model: Model, port: int) -> None:
-        self.keys = Keys(config.station.name)
+        self.keys = config.keys
         self.codecs = {r.name: Codec(r) for r in model.resources}
         self.lock = threading.Lock()
         self.record = Record(states={r: [] for r in self.codecs}, commands={r: [] for r in self.codecs})
@@ -58,7 +60,7 @@ class Watcher:
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
         self._error: BaseException | None = None
-        self.bus: Bus | None = None
+        self.bus: ZenohBus | None = None
         self._thread = threading.Thread(target=self._main, name="watcher", daemon=True)
         self._thread.start()
         if not self._ready.wait(20) or self._error is not None:
@@ -82,7 +84,7 @@ class Watcher:
         # the watcher sees its first messages; listening lets the hubs link to it as soon as gossip tells them.
         config.insert_json5("connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 100,
                                                          "period_increase_factor": 1}))
-        async with Bus(config) as bus:
+        async with ZenohBus(config) as bus:
             self.bus = bus
             subscriptions = [
                 (bus.subscribe(self.keys.ctl("status"), coalesce=False, maxlen=None), self._on_status),
@@ -168,7 +170,7 @@ class Watcher:
         """How many zenoh peers this watcher is linked to."""
         async def count() -> int:
             assert self.bus is not None
-            return len(list(self.bus.session.info.peers_zid()))
+            return self.bus.peer_count()
 
         return self.call(count())
 

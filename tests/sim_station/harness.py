@@ -23,11 +23,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.bus import Bus, Keys, zenoh_config
 from common.config import load_station
 from common.messages import Codec, MessageError
 from common.model import Value
 from common.process import free_port
+from common.zenoh_config import zenoh_config
+from common.zenohbus import ZenohBus
 from deploy.local.simworld import SimWorld
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,7 +42,7 @@ class SimCell:
         self.run_dir = run_dir
         self.speed = speed
         self.port = free_port()
-        self.keys = Keys(self.config.station.name)
+        self.keys = self.config.keys
         self.codecs = {r.name: Codec(r) for r in self.model.resources}
         self.commands: dict[str, dict[str, Value]] = {
             r.name: {v.name: v.initial for v in r.commands} for r in self.model.resources}  # type: ignore[misc]
@@ -49,14 +50,14 @@ class SimCell:
         self.history: dict[str, list[Value | None]] = {}
         self.world: SimWorld | None = None
         self.hubs: dict[str, asyncio.subprocess.Process] = {}
-        self._bus: Bus | None = None
+        self._bus: ZenohBus | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._seq = 0
         self._changed = asyncio.Event()
 
     async def __aenter__(self) -> SimCell:
-        self._bus = Bus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{self.port}"],
-                                     lease_ms=self.config.network.lease_ms))
+        self._bus = ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{self.port}"],
+                                          lease_ms=self.config.network.lease_ms))
         await self._bus.open()
         self._tasks = [asyncio.create_task(self._record()), asyncio.create_task(self._send_commands())]
         self.world = SimWorld(self.config, self.model, self.run_dir / "sim", speed=self.speed,

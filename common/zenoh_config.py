@@ -1,0 +1,96 @@
+"""Zenoh configuration of a statehub process: endpoints, scouting, lease, loopback.
+
+Liveness: a peer that dies closes its TCP link and its tokens vanish at once; a peer
+that freezes (SIGSTOP, a hung Pi) keeps the link open, so it is noticed only when its
+transport lease expires. `zenoh_config` sets the lease (default 2 s) and the
+keep-alive rate so that a frozen hub is declared gone within about the lease (the
+lease a process declares is the one its neighbours apply to it). A peer whose link
+closes, or that starts before the process it connects to, keeps retrying in the
+background and comes back by itself.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from typing import Any, Literal, Protocol
+
+import zenoh
+
+DEFAULT_LEASE_MS = 2000
+# Keep-alives per lease period. 4 is zenoh's default; with a 2 s lease a keep-alive
+# goes out every 500 ms, so one lost keep-alive never expires a healthy link.
+KEEP_ALIVES_PER_LEASE = 4
+
+Mode = Literal["peer", "client"]
+ZenohConfig = zenoh.Config  # what `ZenohBus` opens; callers name the type without importing zenoh
+
+
+class NetworkSettings(Protocol):
+    """What `zenoh_config_for` needs; `common.config.NetworkConfig` satisfies it."""
+
+    mode: str
+    listen: Sequence[str]
+    connect: Sequence[str]
+    lease_ms: int
+
+
+def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect: Iterable[str] = (),
+                 lease_ms: int = DEFAULT_LEASE_MS, *, gossip: bool = True) -> ZenohConfig:
+    """A zenoh config for a statehub process.
+
+    * `mode`: "peer" (direct links on loopback or the station LAN; the controller
+      listens, hubs connect to it) or "client" (through zenoh routers given in `connect`).
+    * `listen` / `connect`: zenoh endpoints (`tcp/127.0.0.1:7447`); an empty `listen`
+      means no listener at all (zenoh's default would be a random port on every interface).
+    * multicast scouting is off: a station's peers are named, never discovered by
+      multicast (which also leaks between test runs and between stations on one LAN).
+      Gossip scouting stays on in peer mode so peers that share a listener learn of each other.
+    * `lease_ms`: the transport lease this process declares to its neighbours; they
+      close the link (and drop its liveliness tokens) when it is silent that long.
+    """
+    if mode not in ("peer", "client"):
+        raise ValueError(f"zenoh mode must be 'peer' or 'client', not {mode!r}")
+    if lease_ms < 100:
+        raise ValueError(f"lease_ms={lease_ms} is too short to survive a scheduling hiccup (>= 100 ms)")
+    listen, connect = list(listen), list(connect)
+    if mode == "client" and listen:
+        raise ValueError("a zenoh client cannot listen: remove `listen` or use mode 'peer'")
+    config = zenoh.Config()
+    settings: dict[str, Any] = {
+        "mode": mode,
+        "connect/endpoints": connect,
+        "scouting/multicast/enabled": False,
+        "scouting/gossip/enabled": gossip and mode == "peer",
+        "transport/link/tx/lease": lease_ms,
+        "transport/link/tx/keep_alive": KEEP_ALIVES_PER_LEASE,
+        # Keep retrying a connect endpoint in the background (a hub may boot before the
+        # controller); a client's open() still fails without a router, which ZenohBus retries.
+        "connect/exit_on_failure": False,
+        "connect/retry": {"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2},
+    }
+    if mode == "peer":
+        settings["listen/endpoints"] = listen
+    # Leave connect/timeout_ms alone: a peer's open() then returns after ~0.5 s even when
+    # nobody listens yet, and keeps retrying in the background (timeout 0 stops the retries).
+    for key, value in settings.items():
+        config.insert_json5(key, json.dumps(value))
+    return config
+
+
+def zenoh_config_for(network: NetworkSettings) -> ZenohConfig:
+    return zenoh_config(network.mode, network.listen, network.connect, network.lease_ms)
+
+
+def loopback_endpoint(port: int) -> str:
+    """The endpoint of a process listening on this machine's loopback (a station run on one machine)."""
+    return f"tcp/127.0.0.1:{port}"
+
+
+def loopback_peer(port: int, lease_ms: int = DEFAULT_LEASE_MS, *, listen: Iterable[str] = ()) -> ZenohConfig:
+    """A peer that connects to the controller listening on 127.0.0.1:`port` (the runner, the sim world)."""
+    return zenoh_config("peer", listen=listen, connect=[loopback_endpoint(port)], lease_ms=lease_ms)
+
+
+def is_client(config: ZenohConfig) -> bool:
+    return bool(json.loads(config.get_json("mode")) == "client")
