@@ -1,4 +1,4 @@
-"""The hub runtime and the driver contract, in one process on an in-memory bus.
+"""The hub runtime and the driver contract, in one process on the in-memory bus (common.membus).
 
 * the safe state: the hub has the driver enter it at start and when commands stop, mirrors
   exactly the command values the driver says it applied, writes nothing else, and applies
@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
-from common.bus import Keys, Sample
+from common.bus import Sample, Subscription
+from common.keys import station_keys
+from common.membus import MemoryBus, MemoryHub
 from common.messages import Codec, HubStatus
 from common.model import Model, Resource, Value, command, measured
 from hubs.drivers.base import Driver, Inputs, Observes, SelftestReport
@@ -30,36 +32,21 @@ def two_tools() -> Model:
     ))
 
 
-class MemoryBus:
-    """What HubRuntime uses of common.bus.Bus, in memory: exact keys, every sample delivered."""
+class RecordingBus(MemoryBus):
+    """The in-memory bus, keeping what the hub published and which keys it subscribed to."""
 
     def __init__(self) -> None:
+        super().__init__(MemoryHub())
         self.published: list[Sample] = []
         self.subscribed: list[str] = []
-        self._queues: dict[str, list[asyncio.Queue[Sample]]] = {}
 
     def publish(self, key: str, payload: bytes, *, block: bool = False) -> None:
-        sample = Sample(key, payload)
-        self.published.append(sample)
-        for queue in self._queues.get(key, []):
-            queue.put_nowait(sample)
+        self.published.append(Sample(key, payload))
+        super().publish(key, payload, block=block)
 
-    def subscribe(self, key: str) -> AsyncIterator[Sample]:
+    def subscribe(self, key: str, **options: Any) -> Subscription[Sample]:
         self.subscribed.append(key)
-        queue: asyncio.Queue[Sample] = asyncio.Queue()
-        self._queues.setdefault(key, []).append(queue)
-
-        async def samples() -> AsyncIterator[Sample]:
-            while True:
-                yield await queue.get()
-
-        return samples()
-
-    def declare_liveliness(self, key: str) -> Any:
-        return type("Token", (), {"undeclare": lambda self: None})()
-
-    def declare_queryable(self, key: str, handler: Any) -> None:
-        return None
+        return super().subscribe(key, **options)
 
 
 class RecordingDriver(Driver):
@@ -102,8 +89,8 @@ class RecordingDriver(Driver):
 class Hub:
     def __init__(self, drivers: Mapping[str, Driver], command_timeout_s: float = 0.3) -> None:
         self.model = two_tools()
-        self.bus = MemoryBus()
-        self.keys = Keys(STATION)
+        self.bus = RecordingBus()
+        self.keys = station_keys(STATION)
         self.codecs = {r.name: Codec(r) for r in self.model.resources}
         self.runtime = HubRuntime(hub="h", station=STATION, model=self.model, drivers=drivers,
                                   bus=self.bus, rate_hz=50, command_timeout_s=command_timeout_s)  # type: ignore[arg-type]
@@ -111,6 +98,7 @@ class Hub:
         self.task: asyncio.Task[None] | None = None
 
     async def __aenter__(self) -> Hub:
+        await self.bus.open()
         self.task = asyncio.create_task(self.runtime.run(self.stop))
         for resource in self.runtime.slots:  # serving: a command sent from now on is received
             await self.state_where(resource, lambda _state: True)
@@ -120,6 +108,7 @@ class Hub:
         self.stop.set()
         assert self.task is not None
         await asyncio.wait_for(self.task, 5)
+        await self.bus.close()
 
     def command(self, resource: str, seq: int, **values: Value) -> None:
         codec = self.codecs[resource]
