@@ -26,7 +26,7 @@ import pytest
 
 from common.bus import Sample, Subscription
 from common.config import load_station
-from common.ctl import StatusMessage
+from common.ctl import HubGone, StatusMessage
 from common.membus import MemoryBus, MemoryHub
 from common.messages import Codec, MessageError, decode
 from controller.service import ControllerService
@@ -77,7 +77,7 @@ class MemoryStation:
         # request, as the controller's planner process builds them when it starts.
         service = ControllerService(self.config, self.model, bus, db=str(self.db), planner_process=False,
                                     hold=self.hold)
-        service.planner.prepare()
+        service.core.planner.prepare()
         stop = asyncio.Event()
         self.running["controller"] = Running(bus, stop, asyncio.create_task(service.run(stop), name="controller"))
 
@@ -207,7 +207,7 @@ async def test_a_stopped_hub_is_unhealthy_and_healthy_again_when_it_is_back(
     reason = station.health()["nr"][1]
     assert "not alive" in reason, reason
     assert station.health()["ur"] == (True, "")  # the other hub's resource is not touched
-    assert "hub pi-tool gone" in station.status().events  # type: ignore[union-attr]
+    assert HubGone(hub="pi-tool") in station.status().events  # type: ignore[union-attr]
     await station.start_hub("pi-tool")
     await station.wait_for(station.all_healthy, "nr healthy again after the hub's restart")
 
