@@ -144,7 +144,7 @@ def new_device(device_type: str, root: Path, *, force: bool = False) -> list[str
     if testable:
         changes.create(root / "tests" / f"test_{device_type}.py", render(
             "test_device.py", type=device_type, station=station.model.name, resources=names,
-            resource_list=", ".join(repr(name) for name in testable)), force=force)
+            resource_list=", ".join(f'"{name}"' for name in testable)), force=force)
     else:
         changes.lines.append(f"  no test: {names} {'has' if len(resources) == 1 else 'have'} no command variables "
                              f"(nothing for a model-based test to command)")

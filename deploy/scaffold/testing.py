@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 
@@ -141,6 +142,11 @@ def _hub_serving(config: Path, resource: str) -> str:
     return owner.name
 
 
+def _fail(message: str) -> NoReturn:
+    # from None: the failure is the whole story, not a consequence of the model test's exception
+    raise pytest.fail.Exception(message, pytrace=False) from None
+
+
 @pytest.fixture
 def station_hub(tmp_path: Path) -> StationHubs:
     """`with station_hub(config, resource) as hub:` the hub serving `resource`, running for the block."""
@@ -150,19 +156,20 @@ def station_hub(tmp_path: Path) -> StationHubs:
         path = Path(config).resolve()
         hub = HubRun(path, _hub_serving(path, resource), free_port(), tmp_path / f"hub-{resource}.log")
         hub.start()
+        failure: Exception | None = None
         try:
-            if not hub.alive:
-                pytest.fail(hub.describe(died=True), pytrace=False)
-            try:
-                yield hub
-            except Exception as exc:  # the model test's report, with what the hub said about it
-                died = not hub.alive
-                hub.stop()
-                pytest.fail(f"{exc}\n\n{hub.describe(died)}", pytrace=False)
+            if hub.alive:
+                try:
+                    yield hub
+                except Exception as exc:  # the model test's report: shown with what the hub said
+                    failure = exc
             died = not hub.alive
-            if hub.stop() and died:
-                pytest.fail(hub.describe(died=True), pytrace=False)
+            code = hub.stop()
         finally:
             hub.stop()
+        if died and (code or failure is not None):  # the hub's own error first: it is the cause
+            _fail(hub.describe(died=True) + (f"\n\n{failure}" if failure else ""))
+        if failure is not None:
+            _fail(f"{failure}\n\n{hub.describe(died=False)}")
 
     return run
