@@ -144,6 +144,19 @@ def test_new_device_without_the_models_markers_changes_nothing(project: Path,
     assert {p: p.read_text() for p in project.rglob("*") if p.is_file()} == before
 
 
+def test_new_device_never_replaces_an_entry_point_that_names_another_driver(
+        project: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pyproject = project / "pyproject.toml"
+    pyproject.write_text(pyproject.read_text().replace('[project.entry-points."statehub.drivers"]\n',
+                                                       '[project.entry-points."statehub.drivers"]\n'
+                                                       'clamp = "vendor_clamps.driver:PLUGIN"\n'))
+    before = {p: p.read_text() for p in project.rglob("*") if p.is_file()}
+    assert hubctl(["new-device", "clamp", "--station", str(project)]) == 2
+    assert ("entry point clamp of group statehub.drivers names 'vendor_clamps.driver:PLUGIN', not "
+            "'scaffold_cell.drivers.clamp:PLUGIN': change it by hand") in capsys.readouterr().err
+    assert {p: p.read_text() for p in project.rglob("*") if p.is_file()} == before
+
+
 def test_new_device_needs_a_station_project(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert hubctl(["new-device", "clamp", "--station", str(tmp_path)]) == 2
     assert "is not a station project (no hubs.toml and pyproject.toml there)" in capsys.readouterr().err

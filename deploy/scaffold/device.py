@@ -28,10 +28,10 @@ from pathlib import Path
 from common.config import ConfigError, StationConfig, check_against_model, load_config
 from common.model import Model, Resource, Variable
 
-from .files import Changes, ScaffoldError, add_to_table, check_name, insert_before_marker, render, toml_key
+from .files import Changes, ScaffoldError, add_to_table, check_name, insert_at_marker, render, toml_key
 
 DRIVER_GROUP = "statehub.drivers"
-IMPORT_MARKER = "hubctl new-device adds the imports of new device models above this line"
+IMPORT_MARKER = "hubctl new-device adds the imports of new device models below this line"
 RESOURCE_MARKER = "hubctl new-device adds new resources above this line"
 PLACEHOLDER_HOST = "192.0.2.10"  # TEST-NET-1: documentation only, never a real device
 MAX_LISTED_VALUES = 12
@@ -126,6 +126,13 @@ def new_device(device_type: str, root: Path, *, force: bool = False) -> list[str
     check_name("device type", device_type)
     station = load_project(root)
     changes = Changes(root.resolve())
+    driver = root / station.package / "drivers" / f"{device_type}.py"
+    test = root / "tests" / f"test_{device_type}.py"
+    # Everything that can refuse is checked before anything is written.
+    for path in (driver, test):
+        changes.check_new(path, force=force)
+    module = f"{station.package}.drivers.{device_type}"
+    registered = _entry_point_registered(root / "pyproject.toml", device_type, f"{module}:PLUGIN")
     resources = [r for r in station.model.resources if r.device_type == device_type]
     if resources:
         changes.lines.append(f"device type {device_type}: resource{'s' if len(resources) > 1 else ''} "
@@ -135,20 +142,19 @@ def new_device(device_type: str, root: Path, *, force: bool = False) -> list[str
         resources = [r for r in station.model.resources if r.device_type == device_type]
     check_same_contract(device_type, resources)
     names = ", ".join(f"resource {r.name}" for r in resources)
-    module = f"{station.package}.drivers.{device_type}"
     first = resources[0]
-    changes.create(root / station.package / "drivers" / f"{device_type}.py", render(
+    changes.create(driver, render(
         "driver.py", type=device_type, station=station.model.name, resources=names, cls=_class_name(device_type),
         measured=_contract(first.measured), commands=_contract(first.commands), **_examples(first)), force=force)
     testable = [r.name for r in resources if r.commands]
     if testable:
-        changes.create(root / "tests" / f"test_{device_type}.py", render(
+        changes.create(test, render(
             "test_device.py", type=device_type, station=station.model.name, resources=names,
             resource_list=", ".join(f'"{name}"' for name in testable)), force=force)
     else:
         changes.lines.append(f"  no test: {names} {'has' if len(resources) == 1 else 'have'} no command variables "
                              f"(nothing for a model-based test to command)")
-    _register_entry_point(root / "pyproject.toml", device_type, f"{module}:PLUGIN", changes)
+    _register_entry_point(root / "pyproject.toml", device_type, f"{module}:PLUGIN", changes, registered)
     _add_to_hubs_toml(station, resources, changes)
     changes.lines += [
         "next:",
@@ -174,9 +180,9 @@ def _add_stub_resource(station: Station, device_type: str, changes: Changes) -> 
         raise ScaffoldError(f"{stub} exists but model {station.model.name} has no resource of device type "
                             f"{device_type!r}: call {device_type}(...) in build_model() ({station.model_file}) first")
     text = station.model_file.read_text(encoding="utf-8")
-    text = insert_before_marker(text, IMPORT_MARKER, f"from {station.package}.devices.{device_type} import "
+    text = insert_at_marker(text, IMPORT_MARKER, f"from {station.package}.devices.{device_type} import "
                                                      f"{device_type}", station.model_file)
-    text = insert_before_marker(text, RESOURCE_MARKER, f"{device_type}({device_type!r}),", station.model_file)
+    text = insert_at_marker(text, RESOURCE_MARKER, f'{device_type}("{device_type}"),', station.model_file)
     changes.lines.append(f"device type {device_type}: model {station.model.name} has no resource of it; added a "
                          f"stub resource model and a resource {device_type!r} of it (model it after the device):")
     changes.create(stub, render("device_model.py", type=device_type))
@@ -188,28 +194,36 @@ def _add_stub_resource(station: Station, device_type: str, changes: Changes) -> 
     return reloaded
 
 
-def _register_entry_point(pyproject: Path, device_type: str, target: str, changes: Changes) -> None:
-    """Add the driver's entry point; one that names another object is left to the person (never replaced)."""
-    text = pyproject.read_text(encoding="utf-8")
-    table = ("project", "entry-points", DRIVER_GROUP)
-    current = tomllib.loads(text).get("project", {}).get("entry-points", {}).get(DRIVER_GROUP, {})
-    if current.get(device_type) == target:
-        changes.lines.append(f"  {changes.rel(pyproject)}: entry point {device_type} = {target!r} is there already")
-        return
-    if device_type in current:
+def _entry_point_registered(pyproject: Path, device_type: str, target: str) -> bool:
+    """Whether the driver's entry point is there already; one that names another object is left to the
+    person (never replaced): ScaffoldError."""
+    current = tomllib.loads(pyproject.read_text(encoding="utf-8")).get("project", {}).get(
+        "entry-points", {}).get(DRIVER_GROUP, {})
+    if device_type in current and current[device_type] != target:
         raise ScaffoldError(f"{pyproject}: entry point {device_type} of group {DRIVER_GROUP} names "
                             f"{current[device_type]!r}, not {target!r}: change it by hand")
-    changes.edit(pyproject, add_to_table(text, table, [f'{device_type} = "{target}"'], pyproject),
-                 f"entry point {device_type} = {target!r} (group {DRIVER_GROUP})")
+    return device_type in current
+
+
+def _register_entry_point(pyproject: Path, device_type: str, target: str, changes: Changes, registered: bool) -> None:
+    if registered:
+        changes.lines.append(f"  {changes.rel(pyproject)}: entry point {device_type} = {target!r} is there already")
+        return
+    text = add_to_table(pyproject.read_text(encoding="utf-8"), ("project", "entry-points", DRIVER_GROUP),
+                        [f'{device_type} = "{target}"'], pyproject)
+    changes.edit(pyproject, text, f"entry point {device_type} = {target!r} (group {DRIVER_GROUP})")
 
 
 # The device's table: emulated until the driver is written; the driver's Params (host, port) ready.
-DRIVER_PARAMS = [f'host = "{PLACEHOLDER_HOST}"                  # TODO: the device\'s address (the driver\'s Params)',
-                 "port = 502"]
+COMMENT_COLUMN = 39  # where the comments of hubs.toml's device tables start
+DRIVER_PARAMS = [
+    f'host = "{PLACEHOLDER_HOST}"'.ljust(COMMENT_COLUMN) + "# TODO: the device's address (the driver's Params)",
+    "port = 502",
+]
 
 
 def _device_lines(device_type: str) -> list[str]:
-    return [f'type = "{device_type}"', 'mode = "emulate"                       # "real" once the driver is written',
+    return [f'type = "{device_type}"', 'mode = "emulate"'.ljust(COMMENT_COLUMN) + '# "real" once the driver is written',
             *DRIVER_PARAMS]
 
 
@@ -230,8 +244,9 @@ def _add_to_hubs_toml(station: Station, resources: list[Resource], changes: Chan
         hub = resources[0].device_type
         while hub in station.config.hubs:
             hub += "_hub"
-        text = text.rstrip("\n") + f'\n\n[hubs.{toml_key((hub,))}]\nhost = "{hub}-ecu.local"' \
-                                   f'                # TODO: the machine this hub runs on\n'
+        machine = f"{hub.replace('_', '-')}-ecu.local"  # a host name has no underscores
+        host = f'host = "{machine}"'.ljust(COMMENT_COLUMN) + "# TODO: the machine this hub runs on"
+        text = text.rstrip("\n") + f"\n\n[hubs.{toml_key((hub,))}]\n{host}\n"
         for resource in unserved:
             text += f"\n[{toml_key(('hubs', hub, 'devices', resource.name))}]\n"
             text += "".join(f"{line}\n" for line in _device_lines(resource.device_type))

@@ -50,10 +50,14 @@ class Changes:
         except ValueError:
             return str(path)
 
+    @staticmethod
+    def check_new(path: Path, *, force: bool) -> None:
+        if path.exists() and not force:
+            raise ScaffoldError(f"{path} exists already: not overwritten (--force overwrites the generated files)")
+
     def create(self, path: Path, text: str, *, force: bool = False) -> None:
         existed = path.exists()
-        if existed and not force:
-            raise ScaffoldError(f"{path} exists already: not overwritten (--force overwrites the generated files)")
+        self.check_new(path, force=force)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")
         self.lines.append(f"  {'rewrote' if existed else 'wrote'} {self.rel(path)}")
@@ -69,14 +73,21 @@ class Changes:
         self.lines.append(f"  changed {self.rel(path)}: {what}")
 
 
-def insert_before_marker(text: str, marker: str, line: str, path: Path) -> str:
-    """`line` inserted above the line holding `marker`, with that line's indentation."""
+def insert_at_marker(text: str, marker: str, line: str, path: Path) -> str:
+    """`line` inserted at the line holding `marker`, with its indentation: above it, or, for a marker
+    that says "below this line", into the sorted run of lines under it (imports stay sorted)."""
     lines = text.splitlines(keepends=True)
     for i, existing in enumerate(lines):
-        if marker in existing:
-            indent = existing[: len(existing) - len(existing.lstrip())]
-            lines.insert(i, f"{indent}{line}\n")
-            return "".join(lines)
+        if marker not in existing:
+            continue
+        indent = existing[: len(existing) - len(existing.lstrip())]
+        at = i
+        if "below this line" in marker:
+            at = i + 1
+            while at < len(lines) and lines[at].lstrip().startswith(("from ", "import ")) and lines[at].strip() < line:
+                at += 1
+        lines.insert(at, f"{indent}{line}\n")
+        return "".join(lines)
     raise ScaffoldError(f"{path} has no line '# {marker}': add the resource to the model yourself (a function "
                         f"returning a Resource of that device type, called in build_model), then run this again")
 
