@@ -5,6 +5,8 @@
   (`vacuum_ejector`); its other own type (`box_feeder`) has neither and stays emulated.
 * The ejector's simulator (physics on a fake clock) and its driver against the simulator
   served in-process over Modbus TCP: commands, readings, blow-off, self-test.
+* The model-based test of the ejector's hub (deploy/modeltest), its driver against the
+  simulator process: the model, the driver and the simulator agree.
 * `hubctl up --config examples/pick_cell/hubs.toml` runs it to completion as separate
   processes over Zenoh, emulated and with `--mode sim` (the ejector's driver against its
   simulator process); and a station whose device types are all unknown to statehub
@@ -21,14 +23,20 @@ import time
 from collections.abc import Awaitable, Callable, Iterator
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 import pytest
 
+from deploy.modeltest import Options
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.registry import find_driver
-from hubs.sim.registry import find_simulator
+from hubs.sim.registry import find_simulator, host_port
+
+if TYPE_CHECKING:
+    from deploy.scaffold.testing import ModelTest, StationHubs
+
+pytest_plugins = ["deploy.modeltest.pytest_plugin", "deploy.scaffold.testing"]
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "examples" / "pick_cell"
@@ -88,6 +96,11 @@ def test_config_check_accepts_its_hubs_toml(pick_cell: None) -> None:
 def test_its_model_checks_every_operation_reachable(pick_cell: None) -> None:
     result = hubctl("check", "--model", "pick_cell.model:build_model")
     assert result.returncode == 0 and "0 unreachable" in result.stdout, result.stdout
+
+
+def test_it_runs_to_completion_in_one_process(pick_cell: None) -> None:
+    result = hubctl("up", "--in-process", "--config", str(CONFIG))
+    assert result.returncode == 0 and "finished: 10/10 operations" in result.stdout, result.stdout
 
 
 # --- the simulator's physics ---------------------------------------------------------------------
@@ -218,6 +231,42 @@ async def test_the_self_test_names_missing_supply_pressure_and_an_absent_gateway
             await driver.read()
     finally:
         await driver.close()
+
+
+# --- the model holds for the driver and the simulator: the model-based test of the ejector's hub -----
+
+@pytest.fixture
+def ejector_simulator(pick_cell: None, tmp_path: Path) -> Iterator[str]:
+    """`python -m pick_cell.sim --port 0` as a process; its address."""
+    log = tmp_path / "ejector-sim.log"
+    with log.open("wb") as out:
+        process = subprocess.Popen([sys.executable, "-m", "pick_cell.sim", "--port", "0"], stdout=out,
+                                   stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + 30.0
+        while "listening on" not in log.read_text():
+            assert process.poll() is None and time.monotonic() < deadline, f"the simulator did not serve: " \
+                                                                           f"{log.read_text()}"
+            time.sleep(0.05)
+        yield log.read_text().split("listening on", 1)[1].split()[0]
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_the_ejector_hub_follows_the_model_with_its_driver_against_its_simulator(
+        ejector_simulator: str, tmp_path: Path, station_hub: StationHubs, model_test: ModelTest) -> None:
+    host, port = host_port(ejector_simulator)
+    text = CONFIG.read_text()
+    device = '[hubs.robot.devices.vac]\ntype = "vacuum_ejector"\nmode = "emulate"\nhost = "192.168.1.60"'
+    assert device in text
+    config = tmp_path / "hubs.toml"
+    config.write_text(text.replace(device, f'[hubs.robot.devices.vac]\ntype = "vacuum_ejector"\nmode = "sim"\n'
+                                           f'host = "{host}"').replace("port = 502", f"port = {port}"))
+    with station_hub(config, "vac") as hub:
+        report = model_test(hub.target, "vac", Options(examples=10, max_steps=5))
+    print(f"model-based test of vac against its simulator: {report.examples} examples, {report.seconds:.1f} s")
 
 
 # --- running it: hubctl up, separate processes over Zenoh ------------------------------------------
