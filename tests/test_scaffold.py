@@ -124,14 +124,15 @@ def test_new_device_keeps_what_exists_unless_forced(project: Path, capsys: pytes
 
 def test_new_device_of_a_type_the_model_lacks_adds_a_stub_resource(project: Path,
                                                                    capsys: pytest.CaptureFixture[str]) -> None:
-    assert hubctl(["new-device", "conveyor", "--station", str(project)]) == 0
+    assert hubctl(["new-device", "label_printer", "--station", str(project)]) == 0
     out = capsys.readouterr().out
-    assert "model scaffold_cell has no resource of it; added a stub resource model and a resource 'conveyor'" in out
-    assert (project / "scaffold_cell" / "devices" / "conveyor.py").is_file()
+    assert ("device type label_printer: model scaffold_cell has no resource of it; added a stub resource model and "
+            "a resource 'label_printer'") in out
+    assert (project / "scaffold_cell" / "devices" / "label_printer.py").is_file()
     config, model = fresh_station(project)  # hubs.toml fits the model: the new hub serves the new resource
-    assert model.problems() == [] and model.resource_by_name["conveyor"].device_type == "conveyor"
-    assert config.hub_of("conveyor").name == "conveyor"  # type: ignore[attr-defined]
-    assert '"on_m": (False, True),' in (project / "scaffold_cell" / "drivers" / "conveyor.py").read_text()
+    assert model.problems() == [] and model.resource_by_name["label_printer"].device_type == "label_printer"
+    assert config.hub_of("label_printer").name == "label_printer"  # type: ignore[attr-defined]
+    assert '"on_m": (False, True),' in (project / "scaffold_cell" / "drivers" / "label_printer.py").read_text()
 
 
 def test_new_device_without_the_models_markers_changes_nothing(project: Path,
@@ -139,7 +140,7 @@ def test_new_device_without_the_models_markers_changes_nothing(project: Path,
     model = project / "scaffold_cell" / "model.py"
     model.write_text("\n".join(line for line in model.read_text().splitlines() if "hubctl new-device" not in line))
     before = {p: p.read_text() for p in project.rglob("*") if p.is_file()}
-    assert hubctl(["new-device", "conveyor", "--station", str(project)]) == 2
+    assert hubctl(["new-device", "label_printer", "--station", str(project)]) == 2
     assert "has no line '# hubctl new-device adds the imports" in capsys.readouterr().err
     assert {p: p.read_text() for p in project.rglob("*") if p.is_file()} == before
 
