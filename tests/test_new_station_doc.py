@@ -19,8 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-
-from tests.scaffold_support import generated_projects_removed
+from scaffold_support import generated_projects_removed
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "new-station.md"

@@ -19,7 +19,6 @@ import contextlib
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -31,6 +30,7 @@ from typing import NoReturn
 import pytest
 
 from common.config import load_config
+from common.process import free_port
 
 from ..modeltest.pytest_plugin import ModelTest
 from ..modeltest.runner import Target
@@ -60,12 +60,6 @@ def hubctl(*args: str | Path, timeout: float = 600.0) -> Hubctl:
     result = subprocess.run([*hubctl_command(), *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, timeout=timeout, check=False)
     return Hubctl(result.returncode, result.stdout)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass
