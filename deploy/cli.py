@@ -238,6 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .modeltest.cli import register_test_command
 
     register_test_command(sub)
+
+    from .scaffold.cli import register_scaffold_commands
+
+    register_scaffold_commands(sub)
     return parser
 
 
