@@ -114,10 +114,10 @@ def serve(args: argparse.Namespace) -> int:
     """Run the hub the options of `add_arguments` describe, until SIGINT or SIGTERM."""
     if args.selftest:
         return selftest(args)
+    failure, overrides = parse_failures(args.failure), parameter_overrides(args.params_file)
     setup_logging(args.name, args.verbose)
     return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
-                               seed=args.seed, mode=args.mode, failure=parse_failures(args.failure),
-                               overrides=parameter_overrides(args.params_file)))
+                               seed=args.seed, mode=args.mode, failure=failure, overrides=overrides))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -11,37 +11,40 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from deploy.cli import main as hubctl
+
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hubs.toml"
-HUBCTL = [sys.executable, "-m", "deploy.cli"]
 
 
 def run(*argv: str | Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(a) for a in argv], cwd=ROOT, capture_output=True, text=True, timeout=60)
 
 
-def test_a_hubs_self_test_is_the_same_from_every_entry_point() -> None:
+def test_a_hubs_self_test_is_the_same_from_every_entry_point(capsys: pytest.CaptureFixture[str]) -> None:
     direct = run(sys.executable, "-m", "hubs", "pi-tool", "--config", CONFIG, "--selftest")
     assert direct.returncode == 0, direct.stderr
     assert direct.stdout.startswith("self-test of hub pi-tool: PASS\n")
     for argv in (["hub", "pi-tool", "--selftest"], ["selftest", "pi-tool"]):
-        through_hubctl = run(*HUBCTL, *argv, "--config", CONFIG)
-        assert (through_hubctl.returncode, through_hubctl.stdout) == (0, direct.stdout), argv
+        code = hubctl([*argv, "--config", str(CONFIG)])
+        assert (code, capsys.readouterr().out) == (0, direct.stdout), argv
 
 
-def test_a_bad_option_is_one_line_naming_the_process() -> None:
+def test_a_bad_option_is_one_line_naming_the_process(capsys: pytest.CaptureFixture[str]) -> None:
     hub = run(sys.executable, "-m", "hubs", "pi-tool", "--config", CONFIG, "--failure", "nr=2")
     assert (hub.returncode, hub.stderr) == (2, "hub pi-tool: --failure 'nr=2': the probability must be within 0..1\n")
-    through_hubctl = run(*HUBCTL, "hub", "pi-tool", "--config", CONFIG, "--failure", "nr=2")
-    assert (through_hubctl.returncode, through_hubctl.stderr) == (2, hub.stderr.replace("hub pi-tool:", "hubctl:"))
+    code = hubctl(["hub", "pi-tool", "--config", str(CONFIG), "--failure", "nr=2"])
+    assert (code, capsys.readouterr().err) == (2, hub.stderr.replace("hub pi-tool:", "hubctl:"))
 
 
-def test_an_invalid_station_file_is_reported_with_file_and_line(tmp_path: Path) -> None:
+def test_an_invalid_station_file_is_reported_with_file_and_line(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
     config = tmp_path / "hubs.toml"
     config.write_text(CONFIG.read_text(encoding="utf-8") + "\n[station.extra]\n", encoding="utf-8")
     direct = run(sys.executable, "-m", "controller", "--config", config)
     assert direct.returncode == 2 and direct.stderr.startswith("controller: "), direct.stderr
     assert f"{config}:" in direct.stderr and "Traceback" not in direct.stderr
-    through_hubctl = run(*HUBCTL, "controller", "--config", config)
-    expected = "hubctl: " + direct.stderr.removeprefix("controller: ")
-    assert (through_hubctl.returncode, through_hubctl.stderr) == (2, expected)
+    code = hubctl(["controller", "--config", str(config)])
+    assert (code, capsys.readouterr().err) == (2, "hubctl: " + direct.stderr.removeprefix("controller: "))

@@ -214,11 +214,16 @@ def emulated_target() -> Target:
     return Target.from_config(EMULATED, loopback_port=EMULATED_PORT)
 
 
-test_emulated_nutrunner = pytest.mark.usefixtures("emulated_hub")(model_based_test("nr", emulated_target, FAST))
-test_emulated_lift = pytest.mark.usefixtures("emulated_hub")(model_based_test("lift", emulated_target, FAST))
-test_emulated_tool_changer = pytest.mark.usefixtures("emulated_hub")(model_based_test("rsp", emulated_target, FAST))
+def against_the_emulated_hub(test: Callable[[], None]) -> Callable[[], None]:
+    return pytest.mark.slow(pytest.mark.usefixtures("emulated_hub")(test))
 
 
+test_emulated_nutrunner = against_the_emulated_hub(model_based_test("nr", emulated_target, FAST))
+test_emulated_lift = against_the_emulated_hub(model_based_test("lift", emulated_target, FAST))
+test_emulated_tool_changer = against_the_emulated_hub(model_based_test("rsp", emulated_target, FAST))
+
+
+@pytest.mark.slow
 @pytest.mark.usefixtures("emulated_hub")
 def test_a_controller_that_starts_commanding_during_the_test_stops_it() -> None:
     target = emulated_target()
@@ -257,6 +262,7 @@ def quirky_hub(hub_process: Callable[..., HubProcess]) -> HubProcess:
     return hub_process(QUIRKY, "tool", QUIRKY_PORT, "--speed", SPEED)
 
 
+@pytest.mark.slow
 def test_the_papers_model_fails_on_the_real_nutrunner_with_a_minimal_sequence(quirky_hub: HubProcess,
                                                                               model_test: ModelTest) -> None:
     target = Target.from_config(QUIRKY, loopback_port=QUIRKY_PORT, model=paper_model())
@@ -279,12 +285,14 @@ def test_the_papers_model_fails_on_the_real_nutrunner_with_a_minimal_sequence(qu
     assert "minimal failing command sequence" in text
 
 
+@pytest.mark.slow
 def test_the_corrected_model_passes_on_the_same_device(quirky_hub: HubProcess, model_test: ModelTest) -> None:
     target = Target.from_config(QUIRKY, loopback_port=QUIRKY_PORT, model=corrected_model())
     report = model_test(target, "nr", QUIRKY_OPTIONS)
     assert report.passed and report.examples >= QUIRKY_OPTIONS.examples - 1
 
 
+@pytest.mark.slow
 def test_a_failed_generated_test_fails_the_pytest_test_with_its_report(quirky_hub: HubProcess) -> None:
     target = Target.from_config(QUIRKY, loopback_port=QUIRKY_PORT, model=paper_model())
     test = model_based_test("nr", target, Options(examples=2, max_steps=2, deadline=0.6, quiet=0.1))
@@ -343,6 +351,7 @@ def test_hubctl_test_refuses_while_a_controller_commands_the_hub() -> None:
     assert "a controller is running" in result.stdout and "decs-12345678 commanding nr" in result.stdout
 
 
+@pytest.mark.slow
 def test_hubctl_test_passes_an_emulated_hub(hub_process: Callable[..., HubProcess]) -> None:
     port = free_port()
     hub_process(EMULATED, "tool", port, "--speed", SPEED)

@@ -253,6 +253,7 @@ def test_move_sets_images_and_preimages_are_the_engines(problem: properties.Prob
         assert planner._preimage(enc.state(state), None) & enc.valid == expected, compiled.describe(state)
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(properties.problems())
 def test_as_short_as_breadth_first_on_random_models(problem: properties.Problem) -> None:
