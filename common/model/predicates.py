@@ -193,16 +193,14 @@ class Not(Predicate):
 
 
 @dataclass(frozen=True)
-class And(Predicate):
+class _Junction(Predicate):
+    """What And and Or share: two or more operands, read alike."""
+
     items: tuple[Predicate, ...]
-    precedence = 2
 
     def __post_init__(self) -> None:
         if len(self.items) < 2:
-            raise ValueError("And needs at least two operands")
-
-    def eval(self, state: Mapping[str, Value]) -> bool:
-        return all(p.eval(state) for p in self.items)
+            raise ValueError(f"{type(self).__name__} needs at least two operands")
 
     def paths(self) -> set[str]:
         return set().union(*(p.paths() for p in self.items))
@@ -210,6 +208,14 @@ class And(Predicate):
     def operands(self) -> Iterable[tuple[str, Operand]]:
         for p in self.items:
             yield from p.operands()
+
+
+@dataclass(frozen=True)
+class And(_Junction):
+    precedence = 2
+
+    def eval(self, state: Mapping[str, Value]) -> bool:
+        return all(p.eval(state) for p in self.items)
 
     def __and__(self, other: object) -> Predicate:
         # a & b & c builds one flat And, as `a && b && c` parses.
@@ -220,23 +226,11 @@ class And(Predicate):
 
 
 @dataclass(frozen=True)
-class Or(Predicate):
-    items: tuple[Predicate, ...]
+class Or(_Junction):
     precedence = 1
-
-    def __post_init__(self) -> None:
-        if len(self.items) < 2:
-            raise ValueError("Or needs at least two operands")
 
     def eval(self, state: Mapping[str, Value]) -> bool:
         return any(p.eval(state) for p in self.items)
-
-    def paths(self) -> set[str]:
-        return set().union(*(p.paths() for p in self.items))
-
-    def operands(self) -> Iterable[tuple[str, Operand]]:
-        for p in self.items:
-            yield from p.operands()
 
     def __or__(self, other: object) -> Predicate:
         return Or((*self.items, as_predicate(other)))

@@ -87,6 +87,17 @@ class Driver(abc.ABC):
         """Device answers, inputs read, outputs read back where the device allows."""
 
 
+class NoOutputs:
+    """Mixed into the driver of a device with no command variables (a camera, a badge reader):
+    nothing to write and no safe state to enter."""
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        return None
+
+    async def enter_safe_state(self) -> Mapping[str, Value]:
+        return {}
+
+
 class Inputs(abc.ABC):
     """Declared capability: the device depends on variables of other resources."""
 

@@ -37,7 +37,7 @@ from typing import Annotated
 import msgspec
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, NoOutputs, SelftestReport
 from hubs.drivers.params import DriverParams, Port, Positive, invalid
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
@@ -89,7 +89,7 @@ def parse_frame(line: bytes) -> list[tuple[float, float]]:
     return people
 
 
-class CameraTracker(LinkedDriver[ReconnectLogic]):
+class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "cam",
@@ -121,12 +121,6 @@ class CameraTracker(LinkedDriver[ReconnectLogic]):
         zones = {zone_of(x, y, self.zones) for x, y in people}
         zone = next((z for z in ZONE_ORDER if z in zones), "outside")
         return {"zone_m": zone}
-
-    async def write(self, commands: Mapping[str, Value]) -> None:
-        return None  # the camera has no command variables
-
-    async def enter_safe_state(self) -> Mapping[str, Value]:
-        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)

@@ -327,19 +327,7 @@ class MirParams(DriverParams, frozen=True, kw_only=True):
 
 
 def build(resource: str, params: MirParams) -> MirRest:
-    return MirRest(
-        resource,
-        host=params.host,
-        port=params.port,
-        username=params.username,
-        password=params.password,
-        missions=params.missions,
-        positions=params.positions,
-        tolerance=params.tolerance,
-        poll_interval=params.poll_interval,
-        timeout=params.timeout,
-        backoff=params.backoff(),
-    )
+    return MirRest(resource, **params.options())
 
 
 PLUGIN = DriverPlugin(MirParams, build)

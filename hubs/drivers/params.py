@@ -35,6 +35,13 @@ class DriverParams(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, fro
         return Backoff(initial=self.reconnect_min, maximum=self.reconnect_max, factor=self.reconnect_factor,
                        jitter=self.reconnect_jitter)
 
+    def options(self, *, leave_out: tuple[str, ...] = ()) -> dict[str, Any]:
+        """A driver's keyword arguments: each of its own parameters by name (but `leave_out`), and the
+        reconnect settings as one `backoff`."""
+        own = {f.name: getattr(self, f.name) for f in msgspec.structs.fields(self)
+               if not f.name.startswith("reconnect_") and f.name not in leave_out}
+        return {**own, "backoff": self.backoff()}
+
 
 class ParamError(ValueError):
     """A bad driver parameter; `key` is its (dotted) name, None when it concerns the whole table."""

@@ -42,7 +42,7 @@ import msgspec
 import serial
 
 from common.model import Value
-from hubs.drivers.base import DeviceUnavailable, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, NoOutputs, SelftestReport
 from hubs.drivers.params import DriverParams, NonNegative
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
 from hubs.drivers.registry import DriverPlugin
@@ -66,7 +66,7 @@ def parse_body(body: bytes) -> str | None:
     return text[:TAG_CHARS].upper() if checksum(raw) == check else None
 
 
-class RfidSerial(LinkedDriver[ReconnectLogic]):
+class RfidSerial(NoOutputs, LinkedDriver[ReconnectLogic]):
     def __init__(
         self,
         resource: str = "rfid",
@@ -115,12 +115,6 @@ class RfidSerial(LinkedDriver[ReconnectLogic]):
             raise DeviceUnavailable(f"{self.resource}: reader on {self.port} not connected ({self._link.last_error})")
         self._expire()
         return {"verified_m": self._operator is not None}
-
-    async def write(self, commands: Mapping[str, Value]) -> None:
-        return None  # the reader has no command variables
-
-    async def enter_safe_state(self) -> Mapping[str, Value]:
-        return {}  # no outputs
 
     async def selftest(self) -> SelftestReport:
         report = SelftestReport(self.resource)

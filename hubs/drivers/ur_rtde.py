@@ -459,22 +459,8 @@ class UrParams(DriverParams, frozen=True, kw_only=True):
 
 
 def build(resource: str, params: UrParams) -> UrRtde:
-    return UrRtde(
-        resource,
-        host=params.host,
-        poses={name: params.pose(name) for name in params.poses},
-        motion_backend=params.motion_backend,
-        command_port=params.command_port,
-        joint_tolerance=params.joint_tolerance,
-        tcp_tolerance=params.tcp_tolerance,
-        rot_tolerance=params.rot_tolerance,
-        stale_after=params.stale_after,
-        start_timeout=params.start_timeout,
-        reissue_after=params.reissue_after,
-        joint_speed=params.joint_speed,
-        tcp_speed=params.tcp_speed,
-        backoff=params.backoff(),
-    )
+    return UrRtde(resource, poses={name: params.pose(name) for name in params.poses},
+                  **params.options(leave_out=("poses",)))
 
 
 PLUGIN = DriverPlugin(UrParams, build)
