@@ -45,6 +45,7 @@ class ResourceSlot:
     status: HubStatus = HubStatus.NO_COMMAND  # what became of the commands
     detail: str = ""
     device_problem: str | None = None  # set while the device does not answer
+    driver_fault: str | None = None  # set while the driver's read fails with a bug, not a lost device
     seq: int = 0
     in_safe_state: bool = False
     measured: Mapping[str, Value | None] = field(default_factory=dict)
@@ -269,6 +270,13 @@ class HubRuntime:
         except DeviceUnavailable as exc:
             slot.measured = {}  # unknown: stale values are never published as fresh
             slot.device_problem = str(exc) or "device does not answer"
+        except Exception as exc:  # a driver bug: the hub reports it and keeps serving its other devices
+            fault = f"driver failed to read: {type(exc).__name__}: {exc}"
+            if fault != slot.driver_fault:  # logged once per distinct failure, not at the read rate
+                log.exception("hub %s: driver of %s failed to read", self.hub, slot.name)
+            slot.measured, slot.driver_fault, slot.device_problem = {}, fault, None
+        else:
+            slot.driver_fault = None
         self._publish(slot)
 
     def _publish(self, slot: ResourceSlot) -> None:
@@ -276,6 +284,8 @@ class HubRuntime:
         status, detail = slot.status, slot.detail
         if slot.device_problem is not None:
             status, detail = HubStatus.DEVICE_LOST, slot.device_problem
+        elif slot.driver_fault is not None:
+            status, detail = HubStatus.ERROR, slot.driver_fault
         try:
             message = slot.codec.state(slot.measured, status=status, detail=detail[:500], seq=slot.seq,
                                        hub=self.hub, mirror=slot.mirror)

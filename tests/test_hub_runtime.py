@@ -223,3 +223,28 @@ async def test_a_safe_state_outside_the_domain_is_an_error_not_a_mirror() -> Non
         assert failed.mirror.run_c is True  # the last command, not the driver's slip
         hub.command("nr", 2, run_c=True)
         assert (await hub.state_where("nr", lambda s: s.mirror.seq == 2)).status == HubStatus.OK
+
+
+class Buggy(RecordingDriver):
+    """A driver whose read has a bug until `fixed`."""
+
+    fixed = False
+
+    async def read(self) -> Mapping[str, Value]:
+        if not self.fixed:
+            raise KeyError("run_m")
+        return await super().read()
+
+
+async def test_a_driver_bug_in_read_is_an_error_status_and_the_hub_keeps_serving() -> None:
+    buggy = Buggy("nr", "run_c", "run_m", {"run_c": False})
+    healthy = RecordingDriver("rsp", "lock_c", "locked_m", {})
+    async with Hub({"nr": buggy, "rsp": healthy}) as hub:
+        failed = await hub.state_where("nr", lambda s: s.status == HubStatus.ERROR)
+        assert "driver failed to read: KeyError" in failed.detail and failed.run_m is None
+        hub.command("rsp", 1, lock_c=True)  # the other device is still served
+        assert (await hub.state_where("rsp", lambda s: s.mirror is not None and s.locked_m is True)).status \
+            == HubStatus.OK
+        buggy.fixed = True
+        recovered = await hub.state_where("nr", lambda s: s.status != HubStatus.ERROR)
+        assert recovered.run_m is False
