@@ -3,8 +3,9 @@
 in drivers/conftest.py and drivers/drvtest.py). A free loopback port is `common.process.free_port`,
 the one `hubctl up` uses.
 
-The end-to-end runs (a whole station, many processes, minutes of wall time) are marked
-`slow`: `./dev test --fast` leaves them out (`pytest -m "not slow"`), `./dev test` runs all.
+The end-to-end runs (a whole station, or hubs as processes driven over Zenoh for seconds) and the
+longest property runs (hundreds of planner searches) are marked `slow`: `./dev test --fast` leaves
+them out (`pytest -m "not slow"`), `./dev test` runs all.
 """
 
 from __future__ import annotations
