@@ -13,7 +13,7 @@ process: ``python -m hubs.sim.camera_tracker --port 7001 [--walk]`` prints
 ``listening on HOST:PORT``; ``--walk [SPEED]`` moves one operator back and forth along y = 1 m
 from x = -2 to x = 4 at SPEED m/s (0.5) so that a station run sees all zones; ``--control``
 reads the people in view from stdin instead, one JSON object per line (what the simulated
-world of ``deploy/simworld.py`` sends as its operator walks)::
+world of ``deploy/local/simworld.py`` sends as its operator walks)::
 
     {"person": 1, "x": 1.0, "y": 3.0}      # person 1 is (now) at x, y
     {"person": 1, "remove": true}          # person 1 left the view

@@ -3,7 +3,7 @@
 A `SimulatorPlugin` says how to simulate one device of its type, in one of two ways:
 
 * `server`: a process of its own that speaks the device's protocol (Modbus TCP, REST,
-  RTDE, a pty, ...). The sim world (`deploy/simworld.py`) starts the process, waits
+  RTDE, a pty, ...). The sim world (`deploy/local/simworld.py`) starts the process, waits
   for the line it prints once it serves (`SimServer.ready`, group 1 = its address),
   and hands the hub the driver parameters that point the real driver at it
   (`SimServer.driver_params(address)`), through a parameter-override file.
