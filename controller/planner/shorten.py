@@ -54,14 +54,14 @@ def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Call
             states.append(transitions[number].outcomes[outcome](states[-1]))
         return states
 
-    def replay(i: int) -> tuple[list[Move], int] | None:
-        """The plan without step i, or None; and the steps it simulated."""
+    def replay(i: int) -> list[Move] | None:
+        """The plan without step i, or None."""
         nonlocal work
         state, kept, skipped = states[i], moves[:i], 0
         for j in range(i + 1, len(moves)):
             work -= 1
             if state == states[j]:
-                return kept + moves[j:], j - i  # back on the plan's own path
+                return kept + moves[j:]  # back on the plan's own path
             number, outcome = moves[j]
             t = transitions[number]
             due = system.first_automatic(state)
@@ -78,7 +78,7 @@ def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Call
             kept.append((number, outcome))
             state = after
         if is_goal(state) and system.first_automatic(state) is None:
-            return kept, len(moves) - i
+            return kept
         return None
 
     states = trajectory(start, moves)
@@ -86,8 +86,8 @@ def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Call
     while i < len(moves) and work > 0:
         if transitions[moves[i][0]].kind is TransitionKind.DELIBERATE:
             tried = replay(i)
-            if tried is not None and len(tried[0]) < len(moves):
-                moves = tried[0]
+            if tried is not None and len(tried) < len(moves):
+                moves = tried
                 states = states[:i] + trajectory(states[i], moves[i:])
                 continue
         i += 1
