@@ -20,7 +20,11 @@ from .model import ModelError
 from .stations import ModelLoadError
 
 # What a process reports as one line: the operator's input is wrong, not the program.
-EXPECTED_ERRORS: tuple[type[BaseException], ...] = (ConfigError, ModelError, ModelLoadError, argparse.ArgumentTypeError)
+# A file that cannot be read (a --config, --db or --params-file path) is the operator's input too.
+EXPECTED_ERRORS: tuple[type[BaseException], ...] = (
+    ConfigError, ModelError, ModelLoadError, argparse.ArgumentTypeError,
+    FileNotFoundError, IsADirectoryError, PermissionError,
+)
 
 
 def setup_logging(name: str, verbose: bool = False) -> None:
@@ -67,8 +71,15 @@ def run_main(prog: str, body: Callable[[], int],
     try:
         return int(body() or 0)
     except expected as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
+        print(f"{prog}: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def one_line(exc: BaseException) -> str:
+    """An expected error as the one line a process prints: a file that cannot be read is named."""
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"cannot read {exc.filename}: {exc.strerror}"
+    return str(exc)

@@ -10,9 +10,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from common.config import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
-from common.model import Model, ModelError, ParseError, parse_predicate
-from common.process import positive
-from common.stations import DEFAULT_MODEL, ModelLoadError, load_model
+from common.model import Model, ParseError, parse_predicate
+from common.process import EXPECTED_ERRORS, one_line, positive
+from common.stations import DEFAULT_MODEL, load_model
 from controller import process as controller_process
 from hubs import process as hub_process
 from hubs.process import parse_failures
@@ -249,8 +249,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ModelError, ModelLoadError, ConfigError, argparse.ArgumentTypeError) as exc:
-        return _fail(str(exc))
+    except EXPECTED_ERRORS as exc:
+        return _fail(one_line(exc))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)
     except Exception as exc:

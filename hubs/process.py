@@ -78,7 +78,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     config, model = load_station(config_path)
     settings = config.hubs.get(hub)
     if settings is None:
-        raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
+        raise argparse.ArgumentTypeError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
                             overrides=overrides)
     stop = stop_on_signals()

@@ -48,3 +48,16 @@ def test_an_invalid_station_file_is_reported_with_file_and_line(tmp_path: Path,
     assert f"{config}:" in direct.stderr and "Traceback" not in direct.stderr
     code = hubctl(["controller", "--config", str(config)])
     assert (code, capsys.readouterr().err) == (2, "hubctl: " + direct.stderr.removeprefix("controller: "))
+
+
+def test_a_missing_config_file_or_unknown_hub_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nowhere.toml"
+    for argv, prog in (([sys.executable, "-m", "hubs", "pi-tool", "--config", missing], "hub pi-tool"),
+                       ([sys.executable, "-m", "controller", "--config", missing], "controller")):
+        result = run(*argv)
+        assert (result.returncode, result.stderr) == (2, f"{prog}: cannot read {missing}: No such file or directory\n")
+    unknown = run(sys.executable, "-m", "hubs", "pi-nowhere", "--config", CONFIG)
+    assert unknown.returncode == 2 and "Traceback" not in unknown.stderr, unknown.stderr
+    assert unknown.stderr.startswith(f"hub pi-nowhere: {CONFIG}: no hub named 'pi-nowhere' (hubs: pi-tool,")
+    assert hubctl(["hub", "pi-tool", "--config", str(missing)]) == 2
+    assert capsys.readouterr().err == f"hubctl: cannot read {missing}: No such file or directory\n"
