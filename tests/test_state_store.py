@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 from common.model import Domain, Model, Resource, command, estimated, measured
@@ -33,3 +37,38 @@ def test_values_the_model_does_not_accept_are_reported(tmp_path: Path) -> None:
     assert values == {}
     assert any("engine.bolt2_e is not in model" in n for n in notes)
     assert any("engine.bolt1_e='glued' is outside" in n for n in notes)
+
+
+def test_the_state_is_synced_at_every_commit(tmp_path: Path) -> None:
+    store = StateStore(tmp_path / "state.sqlite")
+    assert store.db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+    assert store.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+WRITER = """
+import sys
+from controller.state import StateStore
+store = StateStore(sys.argv[1])
+for n in range(1_000_000):
+    store.save({"engine.bolt1_e": "tightened" if n % 2 else "loose"}, {"saves": n})
+    print(n, flush=True)
+    if n >= 50:
+        sys.stdin.readline()  # hold here: the parent kills us right after this save returned
+"""
+
+
+def test_a_save_that_returned_survives_kill_9(tmp_path: Path) -> None:
+    """Power-cut style: the writer is killed -9 right after a save returned; the reopened database has it."""
+    db = tmp_path / "state.sqlite"
+    child = subprocess.Popen([sys.executable, "-c", WRITER, str(db)], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    assert child.stdout is not None
+    last = -1
+    while last < 50:
+        last = int(child.stdout.readline())
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    store = StateStore(db)
+    assert store.meta("saves") == last
+    values, _ = store.load(small_model())
+    assert values == {"engine.bolt1_e": "loose" if last % 2 == 0 else "tightened"}
