@@ -73,6 +73,8 @@ class ReplanReason(enum.StrEnum):
     RESUMED = "resumed"
     STOPPED_BY_OPERATOR = "stopped by the operator"  # detail: the operation
     RESET_BY_OPERATOR = "reset by the operator"  # detail: the operation
+    SAFE_AGAIN = "no forbidden state holds any more"
+    MIRROR_TAKEN = "a held resource's command state arrived"  # detail: the resource
 
 
 _CAUSE_TEXT = {  # how a reason and its detail read where it is not "reason: detail"
@@ -179,7 +181,8 @@ class HubGone(Event, tag="hub_gone"):
 
 
 class MirrorsMissing(Event, tag="mirrors_missing"):
-    """At start, these hubs' resources (by hub) sent no mirror in time: their commands start from the model."""
+    """At start, these hubs' resources (by hub) sent no mirror in time: they are held (sent no command) until
+    their mirrors arrive, and their command state is then taken from the mirrors."""
 
     resources: dict[str, list[str]]
 
@@ -189,7 +192,37 @@ class MirrorsMissing(Event, tag="mirrors_missing"):
 
     @property
     def text(self) -> str:
-        return f"start: no mirror from {self.report}"
+        return f"start: no mirror from {self.report}: held, no command until their mirrors arrive"
+
+
+class HoldReleased(Event, tag="hold_released"):
+    """A held resource's command state is known again: from its mirror, or (its hub restarted and has no
+    command) the model's initial values, which make no specification hold."""
+
+    resource: str
+    source: str
+    template: ClassVar[str] = "{resource} no longer held: its commands resume from {source}"
+
+
+class ForbiddenState(Event, tag="forbidden_state"):
+    """A specification's forbidden state holds on the measured and estimated state (a device did what the
+    model does not say, or an override): no deliberate transition fires until it clears."""
+
+    specification: str
+    values: dict[str, bool | int | str]  # the variables that make it hold
+    fault: ClassVar[bool] = True
+
+    @property
+    def text(self) -> str:
+        values = ", ".join(f"{p} = {format_value(v)}" for p, v in self.values.items())
+        return f"forbidden state: {self.specification} holds ({values}): deliberate transitions stopped"
+
+
+class ForbiddenStateCleared(Event, tag="forbidden_state_cleared"):
+    """The specification's forbidden state no longer holds."""
+
+    specification: str
+    template: ClassVar[str] = "forbidden state cleared: {specification} no longer holds"
 
 
 class RequestAnswered(Event, tag="request"):
@@ -232,7 +265,8 @@ class Recovered(Event, tag="recovered"):
 
 
 ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | HubAlive | HubGone
-                | MirrorsMissing | RequestAnswered | Unhealthy | Recovered | ControllerChanged)
+                | MirrorsMissing | HoldReleased | ForbiddenState | ForbiddenStateCleared | RequestAnswered | Unhealthy
+                | Recovered | ControllerChanged)
 
 
 class StatusMessage(Message, kw_only=True):
@@ -279,6 +313,7 @@ class ConsoleRequest(Message, kw_only=True):
     value: bool | int | str | None = None  # force
     resource: str = ""  # confirm: the operator resource (default: the one that has an instruction)
     origin: str = ""  # who asks (user@host), for the controller's event log
+    override: bool = False  # force: even into a state a specification forbids (logged at WARNING)
 
     def describe(self) -> str:
         """The request as the event log and the console show it, in the model's notation."""
@@ -286,7 +321,8 @@ class ConsoleRequest(Message, kw_only=True):
         if action in ("start", "stop", "reset"):
             return f"{action} {self.operation}"
         if action == "force":
-            return f"force {self.path} := {'?' if self.value is None else format_value(self.value)}"
+            value = "?" if self.value is None else format_value(self.value)
+            return f"force {self.path} := {value}{' (override)' if self.override else ''}"
         if action == "unforce":
             return f"unforce {self.path}"
         if action == "confirm" and self.resource:

@@ -9,7 +9,7 @@ the event loop, hands the result back with `adopt()`, and publishes what changed
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 from common.ctl import (
@@ -28,6 +28,7 @@ from common.model.compiled import CompiledModel, State
 
 from .engine import Engine, PlanProgress, TickResult
 from .planner import Budget, NoPlan, Plan, Planner
+from .safety import SafetyMonitor
 
 RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
 RETRY_MAX_S = 60.0
@@ -148,7 +149,9 @@ class ControlCore:
         self.events = ControlEvents()
         self.paused = False  # the operator holds every deliberate transition: plan steps and operation starts
         self.forced: dict[int, Force] = {}  # by state index
-        self._blocked: frozenset[str] = frozenset()  # ability transitions writing a forced variable
+        self._blocked: frozenset[str] = frozenset()  # writing a forced or reading an unknown variable
+        self.unknown: frozenset[int] = frozenset()  # command variables of held resources (controller/hold.py)
+        self.safety = SafetyMonitor(compiled)
         self._deliberate_names = frozenset(t.name for t in compiled.deliberate)
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
         self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
@@ -206,8 +209,9 @@ class ControlCore:
 
     # --- the loop -----------------------------------------------------------------------
     def tick(self) -> TickResult:
-        paused = self.paused
-        result = self.engine.tick(self.state, requested=() if paused else self.requested,
+        self._check_safety()
+        paused = self.paused or self.safety.stopped
+        result = self.engine.tick(self.state, requested=() if paused else self._startable(),
                                   progress=None if paused else self.progress, disabled=self.disabled,
                                   blocked=self._blocked)
         self.state = result.state
@@ -229,6 +233,19 @@ class ControlCore:
             # Completed plan whose goals do not hold: the world moved on; plan again.
             self._want_plan(ReplanCause(ReplanReason.GOALS_NOT_REACHED))
         return result
+
+    def _check_safety(self) -> None:
+        events = self.safety.check(self.state, self.unknown)
+        if events:
+            self.events.log.extend(events)
+            if not self.safety.stopped:  # devices went on meanwhile, as after a pause: plan afresh
+                self._want_plan(ReplanCause(ReplanReason.SAFE_AGAIN))
+
+    def _startable(self) -> list[str]:
+        """The requested operations whose start does not read an unknown command value."""
+        if not self.unknown:
+            return self.requested
+        return [n for n in self.requested if not (self.engine.op_start[n].reads & self.unknown)]
 
     def _revalidate(self, cause: ReplanCause) -> bool:
         """After the state left the plan: keep the rest of it if the engine would still take it to the goals.
@@ -262,8 +279,8 @@ class ControlCore:
 
     def plan_request(self) -> PlanRequest | None:
         """A planning job if one is due and none is under way."""
-        if self.planning or self.need_plan_reason is None:
-            return None
+        if self.planning or self.need_plan_reason is None or self.safety.stopped:
+            return None  # a plan from a forbidden state waits until it clears
         goals = self.goals()
         self.generation += 1
         self.planning = True
@@ -379,7 +396,7 @@ class ControlCore:
         held = self.forced.get(i)
         self.forced[i] = Force(value, held.own if held is not None else self.state[i], until)
         self.state = self.compiled.with_values(self.state, {path: value})
-        self._forces_changed()
+        self._blocks_changed()
 
     def unforce(self, path: str) -> bool:
         """Release a force; the variable takes its own value again. False if it was not forced."""
@@ -387,7 +404,7 @@ class ControlCore:
         if held is None:
             return False
         self.state = self.compiled.with_values(self.state, {path: held.own})
-        self._forces_changed()
+        self._blocks_changed()
         return True
 
     def own_state(self) -> State:
@@ -402,10 +419,16 @@ class ControlCore:
     def forced_paths(self) -> list[str]:
         return sorted(self.compiled.paths[i] for i in self.forced)
 
-    def _forces_changed(self) -> None:
-        indices = set(self.forced)
+    def set_unknown(self, paths: Iterable[str]) -> None:
+        """Command variables whose values the controller does not know (its resource is held): no transition
+        and no operation start reading them fires, and no specification reading them is evaluated."""
+        self.unknown = frozenset(self.compiled.index[p] for p in paths)
+        self._blocks_changed()
+
+    def _blocks_changed(self) -> None:
+        forced, unknown = set(self.forced), self.unknown
         self._blocked = frozenset(t.name for t in (*self.compiled.automatic, *self.compiled.deliberate)
-                                  if t.writes & indices)
+                                  if t.writes & forced or t.reads & unknown)
 
     def _behind_forces(self, values: Mapping[str, Value]) -> dict[str, Value]:
         """The measured values that no force hides; a hidden one is kept as the variable's own value."""

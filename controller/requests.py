@@ -32,7 +32,10 @@ answer goes into the controller's event log. What each action means:
   measured one the hub's newest measurement, an estimated or command one its value from
   before the force (nothing wrote it meanwhile). Operation states are not forced (start,
   stop and reset change them). Forces are not persisted: a restarted controller holds
-  none, and what it persisted are the variables' own values.
+  none, and what it persisted are the variables' own values. A force that would make one
+  of the model's specifications hold in the current state is refused, naming it, unless the
+  request says `override` (then it is applied and logged at WARNING with who asked);
+  `controller/safety.py` then stops deliberate transitions until the state leaves it.
 """
 
 from __future__ import annotations
@@ -243,6 +246,14 @@ class Requests:
         domain = self.model.variables[path].domain
         if value not in domain:
             return refused(f"{request.value!r} is outside the domain of {path} ({domain.describe()})")
+        forbidden = self.core.safety.made_to_hold(self.core.state, {path: value}, self.core.unknown)
+        if forbidden:
+            what = "; ".join(v.describe() for v in forbidden)
+            if not request.override:
+                return refused(f"{path} := {format_value(value)} would make specification {what} hold "
+                               "(override to force it anyway)")
+            log.warning("override by %s: %s makes specification %s hold", request.origin or "an unnamed console",
+                        request.describe(), what)
         self.core.force(path, value)
         return accepted({Kind.MEASURED: "its hub's measurement is ignored until unforced",
                          Kind.COMMAND: "sent to its hub as forced; transitions writing it wait",

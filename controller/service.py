@@ -6,7 +6,8 @@ and operation states on every change, runs the planner off the event loop, feeds
 mirror-watchdog, and publishes status and state under `{station}/ctl/`.
 
 On start it restores what it persisted, waits (bounded) for every hub's mirror, takes
-the command state from the mirrors, and goes on where it was.
+the command state from the mirrors, and goes on where it was; a resource whose mirror is
+late is held, sent nothing, until it comes (controller/hold.py).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from common.ctl import (
     HubAlive,
     HubGone,
     LoopStats,
-    MirrorsMissing,
     NoPlanFound,
     OperationInfo,
     PlanStepInfo,
@@ -38,6 +38,7 @@ from common.model import Kind, Model, Value
 from common.model.compiled import State
 
 from .control import PlanRequest
+from .hold import CommandHold
 from .planner import NoPlan, Plan, PlanStep
 from .planworker import PlannerProcess
 from .requests import Requests
@@ -100,6 +101,9 @@ class ControllerService:
         self.codecs = {r.name: Codec(r) for r in model.resources if r.name in self.hubs_of}
         self.commanded = {name: c for name, c in self.codecs.items() if c.commands}
         self.command_seq = dict.fromkeys(self.commanded, 0)
+        self._sent: dict[str, tuple[Value, ...]] = {}  # the values each resource was last sent, under its seq
+        commands = {r: [v.name for v in codec.commands] for r, codec in self.commanded.items()}
+        self.command_hold = CommandHold(self.core, commands, self.hubs_of)
         self.mirror_wait = mirror_wait_s
         self.requested = list(requested) if requested is not None else None
         self.hold = hold  # with nothing persisted, request no operation: the console starts them
@@ -143,19 +147,7 @@ class ControllerService:
         deadline = time.monotonic() + self.mirror_wait
         while time.monotonic() < deadline and set(self.commanded) - set(self.mirrors):
             await asyncio.sleep(0.05)
-        missing = sorted(set(self.commanded) - set(self.mirrors))
-        if missing:
-            by_hub: dict[str, list[str]] = {}
-            for r in missing:
-                by_hub.setdefault(self.hubs_of[r], []).append(r)
-            event = MirrorsMissing(by_hub)
-            log.warning("no mirror within %.1f s from %s: their commands start from the model's initial values",
-                        self.mirror_wait, event.report)
-            self.core.events.log.append(event)
-        taken = {f"{r}.{name}": v for r, values in self.mirrors.items() for name, v in values.items()}
-        if taken:
-            self.core.load(taken)
-            log.info("took the command state of %d resources from their mirrors", len(self.mirrors))
+        self.command_hold.start(self.mirrors, self.mirror_wait)
 
     # --- the loop -------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -232,6 +224,8 @@ class ControllerService:
                     mirrors[resource] = codec.values(mirror)
                 elif state.status == HubStatus.NO_COMMAND:
                     mirrors[resource] = {}
+            if resource in self.command_hold.held:
+                self.command_hold.arrived(resource, None if mirror is None else codec.values(mirror), state.status)
             watchdog.state_received(resource, state.status, state.detail, mirrored_seq)
             for path, name in fields:
                 value = getattr(state, name)
@@ -264,8 +258,7 @@ class ControllerService:
     def _tick(self) -> None:
         core = self.core
         unhealthy = self.watchdog.unhealthy()
-        core.set_disabled(frozenset(unhealthy))
-        before = core.state
+        core.set_disabled(frozenset(unhealthy) | self.command_hold.held)
         result = core.tick()
         now = time.monotonic()
         for name in result.started:
@@ -277,7 +270,7 @@ class ControllerService:
         if result.started or result.finished:
             self._status_due = True
         self._persist()
-        self._publish_changed(before, core.state)
+        self._publish_changed()
         self._maybe_plan()
 
     def _persist(self) -> None:
@@ -289,17 +282,25 @@ class ControllerService:
             for path in changes:
                 self._last_persisted[self.compiled.index[path]] = state[self.compiled.index[path]]
 
-    def _publish_changed(self, before: tuple, after: tuple) -> None:
+    def _publish_changed(self) -> None:
+        # Against what was sent, not the tick's start: a force or a mirror taken between ticks is a change too.
+        state, sent = self.core.state, self._sent
         for resource, indices in self.command_indices.items():
-            if any(before[i] != after[i] for _, i in indices):
-                self.command_seq[resource] += 1
+            if sent.get(resource) != tuple(state[i] for _, i in indices):
                 self._send(resource)
 
     def _send(self, resource: str) -> None:
         # Sent to unhealthy resources too: the engine changes nothing for them, and re-sending
-        # the same state lets a recovering hub catch up at once.
+        # the same state lets a recovering hub catch up at once. Not to a held one: its command state is unknown.
+        if resource in self.command_hold.held:
+            return
         codec = self.commanded[resource]
-        values = {name: self.core.state[i] for name, i in self.command_indices[resource]}
+        state = self.core.state
+        values = {name: state[i] for name, i in self.command_indices[resource]}
+        current, previous = tuple(values.values()), self._sent.get(resource)
+        if previous is not None and previous != current:  # new values, new seq: the watchdog sees them applied
+            self.command_seq[resource] += 1
+        self._sent[resource] = current
         seq = self.command_seq[resource]
         message = codec.command(values, seq=seq, controller=self.controller_id)
         self.bus.publish(self.keys.cmd(resource), codec.encode_command(message))

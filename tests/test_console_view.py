@@ -9,6 +9,9 @@ from common.config import load_station
 from common.ctl import (
     ConsoleEvent,
     ControllerChanged,
+    ForbiddenState,
+    ForbiddenStateCleared,
+    HoldReleased,
     HubAlive,
     HubGone,
     MirrorsMissing,
@@ -40,6 +43,7 @@ from controller.console.view import (
     StateView,
     event_text,
     parse_force,
+    split_override,
 )
 from deploy.cli import build_parser
 from tests.fault_station.harness import ROOT
@@ -91,7 +95,13 @@ EVENT_LINES: list[tuple[ConsoleEvent, str, str]] = [
     (HubAlive("pi-tool"), "hub pi-tool alive", ""),
     (HubGone("pi-tool"), "hub pi-tool gone", "bold red"),
     (MirrorsMissing({"pi-tool": ["nr", "rfid"], "decs": ["ur"]}),
-     "start: no mirror from hub decs: ur; hub pi-tool: nr, rfid", ""),
+     "start: no mirror from hub decs: ur; hub pi-tool: nr, rfid: held, no command until their mirrors arrive", ""),
+    (HoldReleased("rsp", "its mirror"), "rsp no longer held: its commands resume from its mirror", ""),
+    (ForbiddenState("tool_released_outside_its_slot", {"rsp.lock_c": False, "rsp.tool_m": "nutrunner"}),
+     "forbidden state: tool_released_outside_its_slot holds (rsp.lock_c = false, rsp.tool_m = nutrunner): "
+     "deliberate transitions stopped", "bold red"),
+    (ForbiddenStateCleared("tool_released_outside_its_slot"),
+     "forbidden state cleared: tool_released_outside_its_slot no longer holds", "green"),
     (RequestAnswered("start Op", False, "Op is finished: reset it to run it again", "ann@decs"),
      "console (ann@decs): start Op refused: Op is finished: reset it to run it again", "cyan"),
     (RequestAnswered("pause", True), "console: pause accepted", "cyan"),
@@ -145,6 +155,11 @@ def test_state_view_filters_by_path_kind_and_recent_change() -> None:
 ])
 def test_force_input_reads_the_model_notation(text: str, expected: tuple[str, object]) -> None:
     assert parse_force(text) == expected
+
+
+def test_force_input_takes_an_explicit_override() -> None:
+    assert split_override("rsp.lock_c = false !override") == ("rsp.lock_c = false", True)
+    assert split_override(" rsp.lock_c = false ") == ("rsp.lock_c = false", False)
 
 
 @pytest.mark.parametrize(("text", "message"), [

@@ -54,6 +54,7 @@ from .view import (
     plan_rows,
     plan_summary,
     resource_rows,
+    split_override,
 )
 
 REFRESH_S = 0.3  # at most ~3 redraws a second: what a person can read
@@ -122,7 +123,7 @@ class ConsoleApp(App[None]):
                 yield RowTable(STATE_COLUMNS, title="", id="state")
             yield RichLog(id="events", max_lines=5000, wrap=True)
         yield Static(id="statusline")
-        yield Input(placeholder="force: path = value (Enter forces, Esc cancels)", id="force")
+        yield Input(placeholder="force: path = value [!override] (Enter forces, Esc cancels)", id="force")
         yield Footer()
 
     def on_mount(self) -> None:
@@ -331,12 +332,13 @@ class ConsoleApp(App[None]):
         self.action_leave_input()
         if not text:
             return
+        text, override = split_override(text)
         try:
             path, value = parse_force(text)
         except ValueError as exc:
             self.say(f"force: {exc}")
             return
-        self.ask(ConsoleRequest(action="force", path=path, value=value))
+        self.ask(ConsoleRequest(action="force", path=path, value=value, override=override))
 
 
 class _ToEventLog(logging.Handler):

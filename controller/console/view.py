@@ -16,6 +16,7 @@ from rich.text import Text
 from common.ctl import (
     ControllerChanged,
     Event,
+    ForbiddenStateCleared,
     OperationInfo,
     Recovered,
     Replanned,
@@ -240,7 +241,8 @@ class EventFeed:
         return events
 
 
-EVENT_STYLES: dict[type[Event], str] = {Recovered: "green", Replanned: "yellow", RequestAnswered: "cyan"}
+EVENT_STYLES: dict[type[Event], str] = {Recovered: "green", ForbiddenStateCleared: "green", Replanned: "yellow",
+                                        RequestAnswered: "cyan"}
 
 
 def event_text(event: Event) -> Text:
@@ -248,6 +250,17 @@ def event_text(event: Event) -> Text:
 
 
 # --- the force input ---------------------------------------------------------------------------
+
+OVERRIDE = "!override"
+
+
+def split_override(text: str) -> tuple[str, bool]:
+    """`path = value !override`: a force even into a state a specification forbids (the controller logs it)."""
+    text = text.strip()
+    if text.endswith(OVERRIDE):
+        return text[:-len(OVERRIDE)].strip(), True
+    return text, False
+
 
 def parse_force(text: str) -> tuple[str, Value]:
     """`nr.run_c = true` (or `:=`, the model's notation) as (path, value); ValueError says what is wrong."""
