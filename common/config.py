@@ -61,6 +61,7 @@ from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 
+from common.hostnames import host_problem, user_problem
 from common.keylines import KeyLines
 from common.keys import Keys, station_keys
 from common.model import Model
@@ -236,6 +237,12 @@ class _Checker:
     def problem(self, path: tuple[str, ...], message: str) -> None:
         self.problems.append(ConfigProblem(self.file, self.lines.line_of(path), ".".join(path), message))
 
+    def where(self, path: tuple[str, ...], host: str, ssh_user: str | None = None) -> None:
+        """`host` and `ssh_user` reach the ssh command line of a deploy: only names, never options."""
+        for key, problem in (("host", host_problem(host)), ("ssh_user", ssh_user and user_problem(ssh_user))):
+            if problem:
+                self.problem((*path, key), problem)
+
     def table(self, value: object, path: tuple[str, ...]) -> dict[str, Any] | None:
         if isinstance(value, dict):
             return value
@@ -337,6 +344,8 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
         table = checker.table(data["controller"], ("controller",))
         if table is not None:
             controller = checker.section(ControllerConfig, table, ("controller",))
+            if controller is not None:
+                checker.where(("controller",), controller.host)
 
     hubs: dict[str, HubConfig] = {}
     served: dict[str, str] = {}
@@ -381,7 +390,10 @@ def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str
         device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource}, free=True)
         if device is not None:
             devices[resource] = device
-    return checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))
+    hub = checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))
+    if hub is not None:
+        checker.where(path, hub.host, hub.ssh_user)
+    return hub
 
 
 def _toml_problem(file: str, message: str) -> ConfigProblem:

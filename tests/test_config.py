@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from common.config import ConfigError, KeyLines, StationConfig, check_against_model, load_config, parse_config
+from common.hostnames import host_problem
 from common.model import Model, Resource, command, measured
 
 REPO_FILE = Path(__file__).resolve().parent.parent / "hubs.toml"
@@ -138,7 +139,28 @@ CASES = [
     ("bad model spec", 'model = "tests.test_config:tiny_model"', 'model = "tests.test_config"', "station.model",
      "model =", "must be 'module:attribute'"),
     ("invalid TOML", "rate_hz = 50", "rate_hz = ", "", "rate_hz", "invalid TOML: Invalid value"),
+    ("ssh option as user", 'host = "pi-tool"', 'host = "pi-tool"\nssh_user = "-oProxyCommand=touch /tmp/x"', "hubs.pi-tool.ssh_user",
+     "ssh_user =", "not starting with '-'"),
+    ("user with a space", 'host = "pi-tool"', 'host = "pi-tool"\nssh_user = "pi x"', "hubs.pi-tool.ssh_user", "ssh_user =",
+     "is not a user name"),
+    ("option as host", 'host = "pi-tool"', 'host = "-oProxyCommand=x"', "hubs.pi-tool.host", 'host = "-o',
+     "neither a hostname"),
+    ("host with a path", 'host = "rfidcam"', 'host = "rfid/cam"', "hubs.rfidcam.host", 'host = "rfid/cam"',
+     "neither a hostname"),
+    ("controller host", 'host = "decs"', 'host = "decs pc"', "controller.host", 'host = "decs pc"',
+     "neither a hostname"),
 ]
+
+
+@pytest.mark.parametrize("host", ["decs", "robot-ecu.local", "192.168.1.50", "::1", "fe80::1", "localhost",
+                                  "pi-tool.station.example."])
+def test_hostnames_and_addresses_are_accepted(host: str) -> None:
+    assert host_problem(host) is None
+
+
+@pytest.mark.parametrize("host", ["", "-x", "a..b", "a_b", "host:22", "999.1.1.1", "x" * 64])
+def test_what_is_no_host_is_refused(host: str) -> None:
+    assert host_problem(host) is not None
 
 
 @pytest.mark.parametrize(("old", "new", "key", "needle", "fragment"), [c[1:] for c in CASES],
