@@ -2,8 +2,8 @@
 
 The test starts Debian's sshd on a free loopback port with its own host key, an
 authorized key it generated and `StrictModes no`, running as the current user. The
-deploys go into a temporary root (`--root`), and `systemctl`, `useradd` and `groupadd`
-on the "remote" PATH are shims that append their arguments to a log; a shim fails once
+deploys go into a temporary root (`--root`), and `systemctl`, `useradd`, `groupadd` and
+`chown` on the "remote" PATH are shims that append their arguments to a log; a shim fails once
 when a `fail-<command>-<argument>` file exists, which is how a failing remote step is
 injected. No hub can start under a shim systemctl, so the deploys use `--no-wait`
 (tests/test_hubwait.py covers the waiting); they use `--offline-deps` because the
@@ -85,7 +85,7 @@ def sshd(tmp_path_factory):
     (home / "authorized_keys").write_text((home / "client_key.pub").read_text())
     shims, calls = home / "shims", home / "calls.log"
     shims.mkdir()
-    for name in ("systemctl", "useradd", "groupadd"):
+    for name in ("systemctl", "useradd", "groupadd", "chown"):
         (shims / name).write_text(SHIM.format(name=name, log=calls, dir=shims))
         (shims / name).chmod(0o755)
     port = free_port()
@@ -174,12 +174,17 @@ class Site:
 
     def args(self, *extra: str, wait: bool = False) -> list[str]:
         return ["--config", str(self.config), "--root", str(self.root), "--ssh-port", str(self.server.port),
-                "--identity", str(self.server.key), "--ssh-option", f"UserKnownHostsFile={self.server.known_hosts}",
-                "--no-sudo", *([] if wait else ["--no-wait"]), *extra]
+                "--identity", str(self.server.key), "--no-sudo", *([] if wait else ["--no-wait"]), *extra]
 
-    def deploy(self, *extra: str, wheel: Path | None = None, wait: bool = False) -> Run:
-        return hubctl("deploy", "pi-tool", *self.args("--offline-deps", "--python", PYTHON,
-                                                      "--wheel", str(wheel or self.wheel.path), *extra, wait=wait))
+    @property
+    def known_hosts(self) -> Path:
+        """The station's: next to its hubs.toml."""
+        return self.config.parent / "known_hosts"
+
+    def deploy(self, *extra: str, wheel: Path | None = None, wait: bool = False, trust: bool = True) -> Run:
+        return hubctl("deploy", "pi-tool", *self.args("--offline-deps", "--python", PYTHON, "--wheel",
+                                                      str(wheel or self.wheel.path),
+                                                      *(["--trust-new-host"] if trust else []), *extra, wait=wait))
 
     def rollback(self, *extra: str) -> Run:
         return hubctl("rollback", "pi-tool", *self.args(*extra))
@@ -216,6 +221,9 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
     assert (rel / ".complete").exists() and (rel / site.wheel.name).exists()
     assert os.access(rel / "venv" / "bin" / "hubctl", os.X_OK)
     assert (rel / "hubs.toml").read_bytes() == site.config.read_bytes()
+    assert (rel / "hubs.toml").stat().st_mode & 0o777 == 0o600  # device passwords: the service user's only
+    assert f"new host: recorded its key in {site.known_hosts}" in run.out
+    assert site.known_hosts.read_text().startswith(f"[127.0.0.1]:{site.server.port} ssh-ed25519 ")
     unit = (site.root / "etc" / "systemd" / "system" / UNIT).read_text()
     assert f"ExecStart={site.current}/venv/bin/python -P -m hubs pi-tool --config {site.current}/hubs.toml\n" in unit
     assert (rel / "units" / UNIT).read_text() == unit
@@ -223,6 +231,7 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
 
     calls = site.server.calls_since(mark)
     assert calls[-3:] == ["systemctl daemon-reload", f"systemctl enable --quiet {UNIT}", f"systemctl restart {UNIT}"]
+    assert f"chown statehub:statehub {rel}/hubs.toml" in calls
     if subprocess.run(["id", "-u", "statehub"], capture_output=True).returncode != 0:
         assert any(c.startswith("useradd --system --user-group") and c.endswith(" statehub") for c in calls)
     [entry] = site.log()
@@ -242,9 +251,10 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
                                 capture_output=True, text=True, timeout=60)
         assert (verify.returncode, verify.stdout + verify.stderr) == (0, "")
 
-    # Deploying the same wheel and hubs.toml again reuses the release and only restarts.
+    # Deploying the same wheel and hubs.toml again reuses the release and only restarts; the key is pinned now.
     mark = site.server.mark()
-    run = ok(site.deploy())
+    run = ok(site.deploy(trust=False))
+    assert f"host key pinned in {site.known_hosts}" in run.out
     assert f"release {release} already there" in run.out
     assert "(the release is there: unit only)" in run.out
     assert f"reused {rel}" in run.out
@@ -261,6 +271,26 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
     assert "failed at step [10/10] wait for hub pi-tool on zenoh" in run.err
     assert "hub pi-tool did not come up on zenoh within 1 s: no liveliness token" in run.err
     assert f"current is {release} and its unit was restarted" in run.err
+
+
+def test_a_new_host_needs_trust_and_a_changed_host_key_is_refused(site, tmp_path):
+    mark = site.server.mark()
+    run = site.deploy(trust=False)
+    assert run.code == 1
+    assert f"no host key of [127.0.0.1]:{site.server.port} is recorded in {site.known_hosts}" in run.err
+    assert "--trust-new-host" in run.err
+    assert not site.known_hosts.exists() and site.server.calls_since(mark) == [] and site.current_release() is None
+
+    # Another key recorded for the address: ssh refuses the real one, with or without --trust-new-host.
+    subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(tmp_path / "other")], check=True)
+    site.known_hosts.write_text(f"[127.0.0.1]:{site.server.port} {(tmp_path / 'other.pub').read_text()}")
+    for trust in (False, True):
+        run = site.deploy(trust=trust)
+        assert run.code == 1
+        assert f"is not the one recorded in {site.known_hosts}: refused" in run.err, run.err
+        assert f"ssh-keygen -R '[127.0.0.1]:{site.server.port}'" in run.err
+    assert site.server.calls_since(mark) == [] and site.current_release() is None
+    assert site.known_hosts.read_text().count("ssh-ed25519") == 1
 
 
 def test_failed_deploys_leave_the_previous_release_running(site, tmp_path):
@@ -342,7 +372,7 @@ def test_dry_run_changes_nothing(site):
 def test_unreachable_host_fails_at_the_probe(site):
     port = free_port()  # nobody listens there
     run = hubctl("deploy", "pi-tool", *site.args("--offline-deps", "--wheel", str(site.wheel.path),
-                                                 "--ssh-port", str(port)))
+                                                 "--ssh-port", str(port), "--trust-new-host"))
     assert run.code == 1
     assert f"failed at step [3/10] probe {getpass.getuser()}@127.0.0.1:{port}" in run.err
     assert "ssh to" in run.err and "Connection refused" in run.err

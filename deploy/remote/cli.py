@@ -100,7 +100,8 @@ def _connection(args: argparse.Namespace) -> tuple[Connection, Waiting]:
     from .deploy import Connection, Waiting
 
     connection = Connection(ssh_port=args.ssh_port, identity=args.identity, ssh_options=tuple(args.ssh_option),
-                            root=args.root, sudo=not args.no_sudo, dry_run=args.dry_run)
+                            root=args.root, sudo=not args.no_sudo, dry_run=args.dry_run, known_hosts=args.known_hosts,
+                            trust_new_host=getattr(args, "trust_new_host", False))
     waiting = Waiting(wait=not args.no_wait, timeout=args.wait_timeout, listen=args.zenoh_listen,
                       connect=tuple(args.zenoh_connect))
     return connection, waiting
@@ -154,6 +155,8 @@ def _target_options(p: argparse.ArgumentParser) -> None:
     ssh.add_argument("--identity", metavar="FILE", help="SSH private key (default: ssh's, e.g. the agent)")
     ssh.add_argument("--ssh-option", action="append", default=[], metavar="OPT",
                      help="extra `ssh -o` option, e.g. UserKnownHostsFile=FILE (repeatable)")
+    ssh.add_argument("--known-hosts", metavar="FILE",
+                     help="the station's known host keys (default: known_hosts next to hubs.toml)")
     ssh.add_argument("--root", default="/", metavar="PREFIX",
                      help="install under PREFIX on the target (PREFIX/opt/statehub, PREFIX/etc/systemd/system); "
                           "for tests and image staging. Users, groups and systemctl still act on the target itself")
@@ -196,6 +199,8 @@ def register_deploy_commands(sub: argparse._SubParsersAction) -> None:  # type: 
                     "leaves the previous release running. Deploying the same code and hubs.toml again reuses "
                     "the release.")
     _target_options(deploy)
+    deploy.add_argument("--trust-new-host", action="store_true",
+                        help="first contact: record the host key in the station's known_hosts (check its fingerprint)")
     deploy.add_argument("--offline-deps", action="store_true",
                         help="install the wheel without its dependencies (pip --no-deps --no-index) into a venv "
                              "made with --system-site-packages, so that they come from the target's python; "

@@ -40,6 +40,7 @@ from common.selftest import format_report
 from common.zenohbus import ZenohBus
 
 from . import scripts
+from .hostkeys import station_known_hosts
 from .hubwait import DEFAULT_LISTEN, HubWaitError, HubWatch, watch_config
 from .layout import Layout, hub_unit_name
 from .progress import Progress, StepFailed
@@ -65,6 +66,8 @@ class Connection:
     root: str = "/"
     sudo: bool = True
     dry_run: bool = False
+    known_hosts: str | None = None  # default: the station's, next to hubs.toml (deploy/remote/hostkeys.py)
+    trust_new_host: bool = False
 
 
 @dataclass(frozen=True)
@@ -102,8 +105,9 @@ def release_id(wheel: Wheel, hubs_toml: bytes) -> str:
 
 def target_of(config: StationConfig, hub: str, connection: Connection) -> SshTarget:
     settings = config.hubs[hub]
+    known_hosts = connection.known_hosts or str(station_known_hosts(config.path))
     return SshTarget(settings.host, settings.ssh_user, connection.ssh_port, connection.identity,
-                     connection.ssh_options)
+                     connection.ssh_options, known_hosts)
 
 
 class UnknownHub(LookupError):
@@ -246,7 +250,8 @@ async def deploy(opts: DeployOptions, out: TextIO | None = None) -> None:
             if wheel is not None:
                 release = release_id(wheel, hubs_toml)
 
-            async with Remote(target, dry_run=conn.dry_run, sudo=conn.sudo, show=progress.show_command) as remote:
+            async with Remote(target, dry_run=conn.dry_run, sudo=conn.sudo, show=progress.show_command,
+                              trust_new_host=conn.trust_new_host) as remote:
                 where = target.where
                 probe = await probe_step(progress, remote, layout, hub, release, opts)
                 previous = probe.current
@@ -269,7 +274,7 @@ async def probe_step(progress: Progress, remote: Remote, layout: Layout, hub: st
         check_probe(probe, where, opts.python, needs_ensurepip=not (opts.offline_deps and probe.pip),
                     sudo=remote.sudo)
         sudo = " (sudo)" if probe.uid != 0 and remote.sudo else ""
-        note.detail = (f"uid {probe.uid}{sudo}, python {'.'.join(map(str, probe.python or ()))}, "
+        note.detail = (f"{remote.pinned}; uid {probe.uid}{sudo}, python {'.'.join(map(str, probe.python or ()))}, "
                        f"{probe.systemd.split(' (')[0]}, current {probe.current or 'none'}, release {release} "
                        f"{'already there' if probe.release == 'complete' else 'new'}")
         return probe

@@ -126,6 +126,7 @@ cp "$STAGE/$WHEEL" "$REL/"
 cp "$STAGE/hubs.toml" "$REL/hubs.toml"
 printf '%s\\n' {q(json.dumps(metadata, sort_keys=True))} > "$REL/release.json"
 chmod -R a+rX "$REL"
+chmod 0600 "$REL/hubs.toml"  # it holds device passwords (the MiR's): the service user's alone (install_unit)
 touch "$REL/.complete"
 echo "installed {wheel}"
 """
@@ -140,6 +141,8 @@ def install_unit(layout: Layout, release: str, stage: str, unit: str, groups: li
 {group_lines}if ! id -u {SERVICE_USER} >/dev/null 2>&1; then
   useradd --system --user-group --no-create-home --home-dir /nonexistent --shell /usr/sbin/nologin {SERVICE_USER}
 fi
+chown {SERVICE_USER}:{SERVICE_USER} {rel}/hubs.toml
+chmod 0600 {rel}/hubs.toml
 mkdir -p {rel}/units {unit_dir}
 cp {q(stage)}/{q(unit)} {rel}/units/{q(unit)}
 cp {q(stage)}/{q(unit)} {unit_dir}/.{q(unit)}.new

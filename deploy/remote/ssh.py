@@ -4,8 +4,8 @@ Plain `ssh` rather than a Python SSH library: it is on every machine that deploy
 reads the user's ~/.ssh/config, agent and known hosts, and it needs no dependency.
 
 * `BatchMode=yes`: never prompt (a deploy runs unattended; a missing key is an error);
-* `StrictHostKeyChecking=accept-new`: the first contact with a fresh ECU records its host
-  key, a changed key is still refused;
+* `StrictHostKeyChecking=yes` against the station's own known_hosts file: a key is recorded
+  only on first contact with `--trust-new-host`, a changed key is refused (deploy/remote/hostkeys.py);
 * one master connection per deploy (`ControlMaster`), so that the dozen steps do not each
   pay a key exchange on a Raspberry Pi; it is closed when the deploy ends;
 * scripts run under `sh -c` (POSIX, whatever the login shell), privileged ones through
@@ -31,7 +31,8 @@ class SshTarget:
     user: str
     port: int | None = None
     identity: str | None = None
-    options: tuple[str, ...] = ()  # extra `-o` options, e.g. UserKnownHostsFile=...
+    options: tuple[str, ...] = ()  # extra `-o` options
+    known_hosts: str | None = None  # the station's known_hosts file: the only keys trusted
 
     @property
     def where(self) -> str:
@@ -48,9 +49,11 @@ class Result:
 class RemoteError(RuntimeError):
     """A remote command failed: where, what, and what it said on stderr."""
 
-    def __init__(self, where: str, what: str, returncode: int, stderr: str) -> None:
+    def __init__(self, where: str, what: str, returncode: int, stderr: str, changed_key_hint: str = "") -> None:
         self.where, self.what, self.returncode, self.stderr = where, what, returncode, stderr.strip()
-        if returncode == SSH_EXIT_CONNECT:
+        if returncode == SSH_EXIT_CONNECT and changed_key_hint and "Host key verification failed" in stderr:
+            message = changed_key_hint
+        elif returncode == SSH_EXIT_CONNECT:
             message = f"ssh to {where} failed: {self.stderr or 'no error message'}"
         else:
             message = f"{what} failed on {where} (exit {returncode})" + (f":\n{self.stderr}" if self.stderr else "")
@@ -64,16 +67,20 @@ class Remote:
     target: SshTarget
     dry_run: bool = False
     sudo: bool = True  # use `sudo -n` for privileged scripts when the SSH user is not root
+    trust_new_host: bool = False  # record the host key on first contact (deploy/remote/hostkeys.py)
     show: Callable[[str], None] = print
     _control_dir: tempfile.TemporaryDirectory[str] | None = field(default=None, init=False, repr=False)
     remote_uid: int | None = field(default=None, init=False)
     _shown_ssh: bool = field(default=False, init=False, repr=False)
+    pinned: str = field(default="", init=False)  # what the host key check did, once done
 
     # --- ssh command lines ---------------------------------------------------------------------
     def ssh_args(self, command: str) -> list[str]:
         t = self.target
-        args = ["ssh", "-o", "BatchMode=yes", "-o", "StrictHostKeyChecking=accept-new",
+        args = ["ssh", "-o", "BatchMode=yes", "-o", "StrictHostKeyChecking=yes",
                 "-o", "ConnectTimeout=10", "-o", "ServerAliveInterval=5", "-o", "ServerAliveCountMax=6"]
+        if t.known_hosts:
+            args += ["-o", f'UserKnownHostsFile="{t.known_hosts}"', "-o", "GlobalKnownHostsFile=/dev/null"]
         if self._control_dir is not None:
             args += ["-o", "ControlMaster=auto", "-o", f"ControlPath={self._control_dir.name}/%C",
                      "-o", "ControlPersist=60"]
@@ -119,6 +126,10 @@ class Remote:
         if self.dry_run:
             self._show_dry(script, privileged, stdin_note)
             return Result(0, "", "")
+        if not self.pinned and self.target.known_hosts:
+            from .hostkeys import pin_host_key
+
+            self.pinned = await pin_host_key(self.target, self.trust_new_host)
         process = await asyncio.create_subprocess_exec(
             *args, stdin=asyncio.subprocess.PIPE if stdin is not None else asyncio.subprocess.DEVNULL,
             stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
@@ -126,7 +137,10 @@ class Remote:
         assert process.returncode is not None
         result = Result(process.returncode, out.decode(errors="replace"), err.decode(errors="replace"))
         if result.returncode == SSH_EXIT_CONNECT or (check and result.returncode != 0):
-            raise RemoteError(self.target.where, what, result.returncode, result.stderr or result.stdout)
+            from .hostkeys import changed_key_hint
+
+            raise RemoteError(self.target.where, what, result.returncode, result.stderr or result.stdout,
+                              changed_key_hint(self.target) if self.target.known_hosts else "")
         return result
 
     def _show_dry(self, script: str, privileged: bool, stdin_note: str) -> None:
