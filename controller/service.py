@@ -36,6 +36,7 @@ from common.ctl import (
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.model.compiled import State
+from common.sdnotify import Notifier
 
 from .control import PlanRequest
 from .hold import CommandHold
@@ -125,6 +126,7 @@ class ControllerService:
         # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
+        self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:
@@ -161,6 +163,7 @@ class ControllerService:
         ]
         try:
             await self._take_mirrors()
+            self.notifier.ready()
             tasks.append(asyncio.create_task(self._resend_commands(stop), name="resend"))
             tasks.append(asyncio.create_task(self._publish_status_loop(stop), name="status"))
             requests = Requests(self.core, persist=lambda ops: self.store.save({}, {"requested": ops}),
@@ -248,6 +251,7 @@ class ControllerService:
         period = 1.0 / self.config.controller.tick_rate_hz
         meter = self.meter
         while not stop.is_set():
+            self.notifier.alive()
             began = time.perf_counter()
             self._tick()
             meter.ticks.append(time.perf_counter() - began)

@@ -28,6 +28,7 @@ from common.ctl import StateSnapshot
 from common.keys import station_keys
 from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 from common.model import Kind, Model, Value
+from common.sdnotify import Notifier
 
 from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from .selftest import SelftestMessage, report_message
@@ -63,6 +64,7 @@ class HubRuntime:
         self.slots = {name: ResourceSlot(name, d, Codec(model.resource_by_name[name])) for name, d in drivers.items()}
         self.selftest_reports: list[SelftestReport] = []
         self._tasks: list[asyncio.Task[None]] = []
+        self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
 
     # --- lifecycle ------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -71,6 +73,7 @@ class HubRuntime:
         token = self.bus.declare_liveliness(self.keys.alive(self.hub))
         try:
             await self._start_in_safe_state()
+            self.notifier.ready()
             self._tasks = [asyncio.create_task(self._commands(slot), name=f"commands {slot.name}")
                            for slot in self.slots.values()]
             self._tasks += [asyncio.create_task(self._external_inputs(), name="inputs")]
@@ -248,6 +251,7 @@ class HubRuntime:
         loop = asyncio.get_running_loop()
         next_at = loop.time()
         while True:
+            self.notifier.alive()
             now = time.monotonic()
             for slot in self.slots.values():
                 if slot.last_command_at is not None and not slot.in_safe_state \

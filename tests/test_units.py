@@ -42,7 +42,8 @@ KNOWN_KEYS = {
         "PrivateTmp", "ProtectKernelTunables", "ProtectKernelModules", "ProtectKernelLogs", "ProtectControlGroups",
         "ProtectClock", "ProtectHostname", "ProtectProc", "RestrictNamespaces", "RestrictRealtime",
         "RestrictSUIDSGID", "LockPersonality", "RemoveIPC", "UMask", "SystemCallArchitectures", "SystemCallFilter",
-        "SystemCallErrorNumber", "StateDirectory", "WorkingDirectory", "ReadWritePaths",
+        "SystemCallErrorNumber", "StateDirectory", "WorkingDirectory", "ReadWritePaths", "WatchdogSec", "MemoryMax",
+        "TasksMax",
     },
     "Install": {"WantedBy"},
 }
@@ -154,7 +155,7 @@ def test_hub_unit_runs_the_current_release_with_self_test_and_backoff(station):
     for line in ("User=statehub", "Restart=always", "RestartSec=5s", "StartLimitIntervalSec=0",
                  "After=network-online.target", "Wants=network-online.target", "NoNewPrivileges=yes",
                  "ProtectSystem=strict", "SupplementaryGroups=i2c", "StandardOutput=journal",
-                 "WantedBy=multi-user.target"):
+                 "WantedBy=multi-user.target", "Type=notify", "WatchdogSec=10s", "MemoryMax=256M", "TasksMax=64"):
         assert line + "\n" in text, line
     assert "AmbientCapabilities" not in text and "RestartSteps" not in text
     newer = hub_unit(station, "pi-tool", layout, BACKOFF_SYSTEMD).text
@@ -173,6 +174,8 @@ def test_controller_unit_keeps_its_state_in_var_lib(station):
            "/opt/statehub/controller/current/hubs.toml\n" in text
     assert "StateDirectory=statehub statehub/var\n" in text  # [controller] db = var/controller.sqlite
     assert "WorkingDirectory=%S/statehub\n" in text and "ExecStartPre" not in text
+    for line in ("Type=notify", "WatchdogSec=30s", "MemoryMax=2G", "TasksMax=256"):
+        assert line + "\n" in text, line
 
 
 def test_unknown_hub_is_named_with_the_file():

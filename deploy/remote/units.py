@@ -31,6 +31,11 @@ Choices, each for a reason:
   used through ctypes/cffi by device libraries, need writable+executable pages), and
   `DevicePolicy=closed` (it would tie the unit to kernel driver names; the groups
   already scope device access).
+* `Type=notify` with `WatchdogSec=`: the process says READY=1 once it serves (a hub in its safe
+  state, the controller with its mirrors taken) and WATCHDOG=1 from its loop (common/sdnotify.py),
+  so systemd restarts a loop that hangs, not only a process that exits. `MemoryMax=` and
+  `TasksMax=` bound what a runaway (a flood of payloads, a leak, a thread per request) can take
+  from the ECU; the controller's bounds are wider for its planner process.
 * Output goes to the journal under the unit's name (`journalctl -u statehub-hub-pi-tool`);
   `PYTHONUNBUFFERED` so that lines appear when written.
 """
@@ -58,6 +63,22 @@ ON_TARGET = Layout()
 BACKOFF_SYSTEMD = 254
 # What Debian bookworm and Raspberry Pi OS bookworm ship: the default when unknown.
 DEFAULT_SYSTEMD = 252
+
+
+@dataclass(frozen=True)
+class Limits:
+    """How long a silent loop is tolerated, and what the process may take."""
+
+    watchdog: str
+    memory: str
+    tasks: int
+
+    def lines(self) -> list[str]:
+        return [f"WatchdogSec={self.watchdog}", f"MemoryMax={self.memory}", f"TasksMax={self.tasks}"]
+
+
+HUB_LIMITS = Limits(watchdog="10s", memory="256M", tasks=64)
+CONTROLLER_LIMITS = Limits(watchdog="30s", memory="2G", tasks=256)
 
 
 @dataclass(frozen=True)
@@ -102,7 +123,7 @@ _HARDENING = [
 ]
 
 
-def _render(description: str, service: Iterable[str], systemd_version: int) -> str:
+def _render(description: str, service: Iterable[str], limits: Limits, systemd_version: int) -> str:
     lines = [
         "# Rendered by `hubctl units` / `hubctl deploy` from hubs.toml: edit hubs.toml, not this file.",
         "[Unit]",
@@ -112,8 +133,9 @@ def _render(description: str, service: Iterable[str], systemd_version: int) -> s
         "StartLimitIntervalSec=0",
         "",
         "[Service]",
-        "Type=exec",
+        "Type=notify",
         *service,
+        *limits.lines(),
         *_restart(systemd_version),
         "TimeoutStopSec=10s",
         "StandardOutput=journal",
@@ -163,7 +185,7 @@ def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
         "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK AF_CAN",
     ]
     return Unit(name, _render(f"statehub hub {hub} of station {config.station.name}: {devices}",
-                              service, systemd_version))
+                              service, HUB_LIMITS, systemd_version))
 
 
 def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
@@ -191,7 +213,7 @@ def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
         "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK",
     ]
     return Unit(CONTROLLER_UNIT, _render(f"statehub controller {config.controller.name} of station "
-                                         f"{config.station.name}", service, systemd_version))
+                                         f"{config.station.name}", service, CONTROLLER_LIMITS, systemd_version))
 
 
 def station_units(config: StationConfig, layout: Layout = ON_TARGET,
