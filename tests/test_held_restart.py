@@ -46,8 +46,6 @@ def test_a_resource_without_mirror_at_restart_is_sent_nothing_until_its_mirror_a
 
     station.wait_for(between_bolts, RUN_TIMEOUT_S, "a bolt done and the nutrunner idle", poll=0.002)
     station.freeze("ur10")
-    commanded = station.watch.states("ur")[-1].message.mirror.ref_pos_c
-    assert commanded != "home", "the robot is commanded where a restart from the model would send it anyway"
     station.kill("controller")
     station.start_controller(fresh=False, mirror_wait=0.5)
     status = station.wait_for(lambda: (s := station.watch.status()) is not None and s.controller != first and s,
@@ -61,8 +59,11 @@ def test_a_resource_without_mirror_at_restart_is_sent_nothing_until_its_mirror_a
     (event,) = [e for e in station.watch.status().events if isinstance(e, MirrorsMissing)]
     assert event.resources == {"ur10": ["ur"]}
 
-    station.thaw("ur10")
+    thawed_at = station.thaw("ur10")
     sent = station.wait_for(lambda: controller_commands(station, "ur", second), 15, "the robot commanded again")
-    assert sent[0].message.ref_pos_c == commanded, f"first command after the mirror: {sent[0].message}"
+    # What the hub had applied (from the first controller), as its first state after the thaw mirrors it.
+    applied = next(s.message.mirror for s in station.watch.states("ur") if s.at >= thawed_at)
+    assert applied.controller == first and applied.ref_pos_c != "home", applied
+    assert sent[0].message.ref_pos_c == applied.ref_pos_c, f"first command after the mirror: {sent[0].message}"
     station.wait_for(station.watch.finished, RUN_TIMEOUT_S, "the station finishes")
     assert_station_done_each_bolt_once(station)
