@@ -24,6 +24,13 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     listen  = ["tcp/0.0.0.0:7447"]               # optional: replaces [network].listen for the controller
     connect = []                                 # optional: replaces [network].connect for the controller
 
+    [security]                   # optional (common/security.py)
+    mode = "tls"                 # "tls": mTLS on every link and access control by certificate;
+                                 # "insecure" (default): plain TCP, for a single-machine `hubctl up` only
+    certs = "/etc/statehub/certs"  # certificates (`hubctl certs`); default ~/.config/statehub/{station}/certs
+    operators = ["operator"]     # names whose certificates have the operator role (consoles, hubctl)
+    verify_names = true          # a listener's certificate must name the host connected to
+
     [hubs.pi-tool]               # one table per hub (ECU); the table name is the hub name
     host              = "pi-tool"   # machine (hostname or address) for deploy/ssh
     ssh_user          = "pi"
@@ -70,6 +77,7 @@ from common.stations import ModelLoadError, load_model
 DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
 DEVICE_MODES = ("emulate", "sim", "real")
 NETWORK_MODES = ("peer", "client")
+SECURITY_MODES = ("tls", "insecure")
 
 Hz = Annotated[float, msgspec.Meta(gt=0)]
 Seconds = Annotated[float, msgspec.Meta(gt=0)]
@@ -88,6 +96,14 @@ class NetworkConfig(msgspec.Struct, frozen=True):
     listen: list[str] = msgspec.field(default_factory=list)
     connect: list[str] = msgspec.field(default_factory=list)
     lease_ms: Annotated[int, msgspec.Meta(ge=100)] = 2000
+
+
+class SecurityConfig(msgspec.Struct, frozen=True):
+    """[security]: how the station's links are protected (common/security.py, docs/deployment.md)."""
+    mode: Literal["tls", "insecure"] = "insecure"
+    certs: str = ""  # certificate directory; "" = ~/.config/statehub/{station}/certs
+    operators: list[str] = msgspec.field(default_factory=lambda: ["operator"])  # names of the operator role
+    verify_names: bool = True  # a listener's certificate must name the host a process connects to
 
 
 class ControllerConfig(msgspec.Struct, frozen=True):
@@ -128,6 +144,7 @@ class StationConfig(msgspec.Struct, frozen=True):
     network: NetworkConfig
     controller: ControllerConfig
     hubs: dict[str, HubConfig]
+    security: SecurityConfig = SecurityConfig()
 
     @property
     def keys(self) -> Keys:
@@ -294,7 +311,7 @@ def _toml_type(value: object) -> str:
 
 def _explain_type(exc: msgspec.ValidationError, value: object, ftype: object, key: str) -> str:
     if key == "mode" and isinstance(value, str):
-        allowed = NETWORK_MODES if "peer" in str(ftype) else DEVICE_MODES
+        allowed = NETWORK_MODES if "peer" in str(ftype) else SECURITY_MODES if "tls" in str(ftype) else DEVICE_MODES
         return f"unknown mode {value!r} (expected one of: {', '.join(allowed)})"
     text = re.sub(r"\s*- at `\$[^`]*`", "", str(exc))
     return f"{text} (found {_toml_type(value)} {value!r})"
@@ -316,8 +333,8 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
         raise ConfigError([_toml_problem(file, str(exc))]) from None
 
     for key in data:
-        if key not in ("station", "network", "controller", "hubs"):
-            checker.problem((key,), "unknown section (known: station, network, controller, hubs)")
+        if key not in ("station", "network", "controller", "hubs", "security"):
+            checker.problem((key,), "unknown section (known: station, network, controller, hubs, security)")
 
     station = network = controller = None
     table = checker.table(data.get("station"), ("station",)) if "station" in data else None
@@ -357,10 +374,12 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
         if hub is not None:
             hubs[hub_name] = hub
 
+    security = _load_security(checker, data.get("security", {}), controller, hubs)
     if checker.problems:
         raise ConfigError(checker.problems)
-    assert station is not None and network is not None and controller is not None
-    config = StationConfig(path=file, station=station, network=network, controller=controller, hubs=hubs)
+    assert station is not None and network is not None and controller is not None and security is not None
+    config = StationConfig(path=file, station=station, network=network, controller=controller, hubs=hubs,
+                           security=security)
     if model is not None:
         check_against_model(config, model, text=text)
     return config
@@ -394,6 +413,25 @@ def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str
     if hub is not None:
         checker.where(path, hub.host, hub.ssh_user)
     return hub
+
+
+def _load_security(checker: _Checker, value: object, controller: ControllerConfig | None,
+                   hubs: Mapping[str, HubConfig]) -> SecurityConfig | None:
+    """[security]; a certificate's common name is the name of its holder, so no two may share one."""
+    table = checker.table(value, ("security",))
+    security = checker.section(SecurityConfig, table, ("security",)) if table is not None else None
+    if security is None:
+        return None
+    taken = {hub: "a hub" for hub in hubs} | ({controller.name: "the controller"} if controller else {})
+    for name in security.operators:
+        if not _NAME.match(name) or name in taken:
+            why = f"is already the name of {taken[name]}" if name in taken else "must be letters, digits, _ . -"
+            checker.problem(("security", "operators"), f"operator {name!r} {why} (a certificate's common name "
+                                                       f"must name one holder)")
+    if controller and controller.name in hubs:
+        checker.problem(("controller", "name"), f"{controller.name!r} is also a hub's name: certificates name "
+                                                f"their holder, so the controller needs a name of its own")
+    return security
 
 
 def _toml_problem(file: str, message: str) -> ConfigProblem:

@@ -17,12 +17,13 @@ from collections.abc import Callable
 
 from .config import ConfigError, NetworkConfig, StationConfig
 from .model import ModelError
+from .security import SecurityError
 from .stations import ModelLoadError
 
 # What a process reports as one line: the operator's input is wrong, not the program.
 # A file that cannot be read (a --config, --db or --params-file path) is the operator's input too.
 EXPECTED_ERRORS: tuple[type[BaseException], ...] = (
-    ConfigError, ModelError, ModelLoadError, argparse.ArgumentTypeError,
+    ConfigError, ModelError, ModelLoadError, SecurityError, argparse.ArgumentTypeError,
     FileNotFoundError, IsADirectoryError, PermissionError,
 )
 

@@ -12,7 +12,9 @@ background and comes back by itself.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import zenoh
@@ -26,6 +28,35 @@ Mode = Literal["peer", "client"]
 ZenohConfig = zenoh.Config  # what `ZenohBus` opens; callers name the type without importing zenoh
 
 
+@dataclass(frozen=True)
+class TlsSettings:
+    """Mutual TLS on every link, and the access control every link is checked against
+    (common/security.py, common/acl.py). The same certificate serves listening and connecting."""
+
+    root_ca: Path
+    certificate: Path
+    private_key: Path
+    access_control: Mapping[str, Any] = field(default_factory=dict)
+    # A connecting process checks that the listener's certificate names the host it dialled.
+    verify_names: bool = True
+
+    def settings(self) -> dict[str, Any]:
+        cert, key = str(self.certificate), str(self.private_key)
+        return {
+            # No link of any other protocol: a plain tcp/ peer cannot even open a session.
+            "transport/link/protocols": ["tls"],
+            "transport/link/tls": {
+                "root_ca_certificate": str(self.root_ca),
+                "listen_certificate": cert, "listen_private_key": key,
+                "connect_certificate": cert, "connect_private_key": key,
+                "enable_mtls": True,  # a listener accepts only peers with a certificate of the station's CA
+                "verify_name_on_connect": self.verify_names,
+                "close_link_on_expiration": True,
+            },
+            "access_control": dict(self.access_control),
+        }
+
+
 class NetworkSettings(Protocol):
     """What `zenoh_config_for` needs; `common.config.NetworkConfig` satisfies it."""
 
@@ -36,7 +67,8 @@ class NetworkSettings(Protocol):
 
 
 def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect: Iterable[str] = (),
-                 lease_ms: int = DEFAULT_LEASE_MS, *, gossip: bool = True) -> ZenohConfig:
+                 lease_ms: int = DEFAULT_LEASE_MS, *, gossip: bool = True,
+                 tls: TlsSettings | None = None) -> ZenohConfig:
     """A zenoh config for a statehub process.
 
     * `mode`: "peer" (direct links on loopback or the station LAN; the controller
@@ -48,6 +80,8 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
       Gossip scouting stays on in peer mode so peers that share a listener learn of each other.
     * `lease_ms`: the transport lease this process declares to its neighbours; they
       close the link (and drop its liveliness tokens) when it is silent that long.
+    * `tls`: mutual TLS and access control; every endpoint must then be a `tls/` one.
+      Gossip only passes on locators over links that are already authenticated.
     """
     if mode not in ("peer", "client"):
         raise ValueError(f"zenoh mode must be 'peer' or 'client', not {mode!r}")
@@ -56,6 +90,8 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
     listen, connect = list(listen), list(connect)
     if mode == "client" and listen:
         raise ValueError("a zenoh client cannot listen: remove `listen` or use mode 'peer'")
+    if tls is not None and any(not e.startswith("tls/") for e in (*listen, *connect)):
+        raise ValueError(f"with TLS every endpoint must be tls/: {', '.join(e for e in (*listen, *connect))}")
     config = zenoh.Config()
     settings: dict[str, Any] = {
         "mode": mode,
@@ -71,6 +107,8 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
     }
     if mode == "peer":
         settings["listen/endpoints"] = listen
+    if tls is not None:
+        settings.update(tls.settings())
     # Leave connect/timeout_ms alone: a peer's open() then returns after ~0.5 s even when
     # nobody listens yet, and keeps retrying in the background (timeout 0 stops the retries).
     for key, value in settings.items():

@@ -22,6 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fresh", action="store_true", help="forget the persisted state first")
     parser.add_argument("--mirror-wait", type=positive, default=5.0, help="seconds to wait for the hubs' mirrors")
     parser.add_argument("--loopback-port", type=int, help="run on loopback, listening on this port")
+    parser.add_argument("--certs", metavar="DIR", help="the certificate directory ([security] mode = \"tls\"; "
+                                                       "default: [security] certs)")
     parser.add_argument("--hold", action="store_true",
                         help="with no persisted requests, start no operation: the operator starts them from the "
                              "console")
@@ -29,8 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
-                         fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False) -> int:
-    from common.zenoh_config import zenoh_config_for
+                         fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False,
+                         certs: str | None = None) -> int:
+    from common.security import identity_of
+    from common.station_net import security_banner, station_zenoh_config
     from common.zenohbus import ZenohBus
 
     from .service import ControllerService
@@ -40,12 +44,14 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
     if fresh:
         for suffix in ("", "-wal", "-shm"):
             Path(db_path + suffix).unlink(missing_ok=True)
+    zconfig = station_zenoh_config(config, model, identity_of(config, "controller"),
+                                   network(config, "controller", loopback_port), certs=certs)
     stop = stop_on_signals()
-    async with ZenohBus(zenoh_config_for(network(config, "controller", loopback_port))) as bus:
+    async with ZenohBus(zconfig) as bus:
         service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold)
         logging.getLogger("statehub.controller").info(
-            "controller %s: station %s, %d resources, %d operations", service.controller_id,
-            config.station.name, len(service.hubs_of), len(model.operations))
+            "controller %s: station %s, %d resources, %d operations; %s", service.controller_id,
+            config.station.name, len(service.hubs_of), len(model.operations), security_banner(config))
         await service.run(stop)
     return 0
 
@@ -54,7 +60,7 @@ def serve(args: argparse.Namespace) -> int:
     """Run the controller the options of `add_arguments` describe, until SIGINT or SIGTERM."""
     setup_logging("controller", args.verbose)
     return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
-                                      mirror_wait_s=args.mirror_wait, hold=args.hold))
+                                      mirror_wait_s=args.mirror_wait, hold=args.hold, certs=args.certs))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -156,7 +156,7 @@ def cmd_console(args: argparse.Namespace) -> int:
     from controller.console.app import run_console
 
     listen = [] if args.listen == "none" else [args.listen]
-    return run_console(args.config, connect=args.connect, listen=listen)
+    return run_console(args.config, connect=args.connect, listen=listen, operator=args.operator, certs=args.certs)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -217,6 +217,10 @@ def build_parser() -> argparse.ArgumentParser:
     console.add_argument("--listen", default="tcp/0.0.0.0:0", metavar="ENDPOINT",
                          help="where the hubs may link to the console for their self-test reports (peers do not "
                               "route; default: any interface, a free port; `none`: do not listen)")
+    console.add_argument("--as", dest="operator", metavar="OPERATOR",
+                         help="with [security] mode = \"tls\": the operator whose certificate to present "
+                              "(default: the first of [security] operators)")
+    console.add_argument("--certs", metavar="DIR", help="the certificate directory (default: [security] certs)")
     console.set_defaults(func=cmd_console)
 
     plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
@@ -234,6 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .remote.cli import register_deploy_commands
 
     register_deploy_commands(sub)
+
+    from .certs import register_certs_commands
+
+    register_certs_commands(sub)
 
     from .modeltest.cli import register_test_command
 

@@ -61,6 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P")
     parser.add_argument("--loopback-port", type=int, help="run on loopback, the controller listening on this port")
+    parser.add_argument("--certs", metavar="DIR", help="the certificate directory ([security] mode = \"tls\"; "
+                                                       "default: [security] certs)")
     parser.add_argument("--selftest", action="store_true",
                         help="run the hub's self-test instead of serving; exit 1 on a failure")
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -68,8 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
                   seed: int = 0, mode: str | None = None, failure: dict[str, float] | None = None,
-                  overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
-    from common.zenoh_config import zenoh_config_for
+                  overrides: Mapping[str, Mapping[str, Any]] | None = None, certs: str | None = None) -> int:
+    from common.security import identity_of
+    from common.station_net import security_banner, station_zenoh_config
     from common.zenohbus import ZenohBus
 
     from .factory import build_drivers
@@ -81,11 +84,14 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
         raise argparse.ArgumentTypeError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
                             overrides=overrides)
+    zconfig = station_zenoh_config(config, model, identity_of(config, hub), network(config, hub, loopback_port),
+                                   certs=certs)
     stop = stop_on_signals()
-    async with ZenohBus(zenoh_config_for(network(config, hub, loopback_port))) as bus:
+    async with ZenohBus(zconfig) as bus:
         runtime = HubRuntime(hub=hub, station=config.station.name, model=model, drivers=drivers, bus=bus,
                              rate_hz=settings.rate_hz, command_timeout_s=settings.command_timeout_s)
-        logging.getLogger("statehub.hub").info("hub %s serving %s", hub, ", ".join(drivers))
+        logging.getLogger("statehub.hub").info("hub %s serving %s; %s", hub, ", ".join(drivers),
+                                               security_banner(config))
         await runtime.run(stop)
     return 0
 
@@ -117,7 +123,8 @@ def serve(args: argparse.Namespace) -> int:
     failure, overrides = parse_failures(args.failure), parameter_overrides(args.params_file)
     setup_logging(args.name, args.verbose)
     return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
-                               seed=args.seed, mode=args.mode, failure=failure, overrides=overrides))
+                               seed=args.seed, mode=args.mode, failure=failure, overrides=overrides,
+                               certs=args.certs))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

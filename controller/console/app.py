@@ -352,10 +352,20 @@ class _ToEventLog(logging.Handler):
         self.app.log_lines.append(f"console: {record.getMessage()}")  # deque.append is thread-safe
 
 
-def run_console(config: str, connect: Sequence[str] = (), listen: Sequence[str] = ("tcp/0.0.0.0:0",)) -> int:
-    info = StationInfo.load(config)
+def run_console(config: str, connect: Sequence[str] = (), listen: Sequence[str] = ("tcp/0.0.0.0:0",), *,
+                operator: str | None = None, certs: str | None = None) -> int:
+    """`operator`: whose certificate the console presents in tls mode (default: the first of
+    [security] operators); `certs`: the certificate directory."""
+    from common.config import NetworkConfig, load_station
+    from common.security import operator_identity
+    from common.station_net import station_zenoh_config
+
+    station, model = load_station(config)
+    info = StationInfo.from_station(station, model)
     endpoints = list(connect) or list(info.default_connect)
-    link = ConsoleLink(info.station, endpoints, listen=listen, lease_ms=info.lease_ms)
+    network = NetworkConfig(mode="peer", listen=list(listen), connect=endpoints, lease_ms=info.lease_ms)
+    zconfig = station_zenoh_config(station, model, operator_identity(station, operator), network, certs=certs)
+    link = ConsoleLink(info.station, endpoints, listen=listen, lease_ms=info.lease_ms, zconfig=zconfig)
     app = ConsoleApp(info, link)
     root = logging.getLogger()
     root.handlers[:] = [_ToEventLog(app)]

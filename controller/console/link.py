@@ -28,7 +28,7 @@ from common.ctl import ConsoleReply, ConsoleRequest, StateSnapshot, StatusMessag
 from common.keys import station_keys
 from common.messages import Message, MessageError, decode, encode
 from common.selftest import SelftestMessage
-from common.zenoh_config import zenoh_config
+from common.zenoh_config import ZenohConfig, zenoh_config
 from common.zenohbus import ZenohBus
 
 log = logging.getLogger("statehub.console")
@@ -60,10 +60,11 @@ def origin() -> str:
 
 class ConsoleLink:
     def __init__(self, station: str, connect: Sequence[str], *, listen: Sequence[str] = ("tcp/0.0.0.0:0",),
-                 lease_ms: int = 2000) -> None:
+                 lease_ms: int = 2000, zconfig: ZenohConfig | None = None) -> None:
+        """`zconfig`: the session's config when the station is secured (common/station_net.py)."""
         self.keys = station_keys(station)
         self.connect = list(connect)
-        self.config = zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
+        self.config = zconfig or zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
         self.snapshot: StateSnapshot | None = None
         self.selftests: dict[str, SelftestMessage] = {}

@@ -8,9 +8,8 @@ resource come from the same hubs.toml and model the controller loads.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from common.config import StationConfig, load_station
+from common.config import StationConfig
 from common.model import Kind, Model
 
 
@@ -33,11 +32,6 @@ class StationInfo:
             lease_ms=config.network.lease_ms,
             default_connect=controller_endpoints(config),
         )
-
-    @staticmethod
-    def load(path: str | Path) -> StationInfo:
-        config, model = load_station(path)
-        return StationInfo.from_station(config, model)
 
 
 def controller_endpoints(config: StationConfig) -> tuple[str, ...]:
