@@ -51,7 +51,6 @@ from common.config import DeviceConfig, StationConfig, load_station
 from common.keys import Keys
 from common.messages import Codec
 from common.model import Model
-from common.zenoh_config import loopback_peer
 from common.zenohbus import ZenohBus
 from hubs.factory import effective_mode
 from hubs.protocols.coupler import TOOLS
@@ -59,6 +58,8 @@ from hubs.protocols.ur import COMMAND_PORT
 from hubs.sim import cell
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, find_simulator, host_port
 from hubs.sim.rfid_serial import OPERATOR_TAG
+
+from .localcerts import watcher_zenoh_config
 
 log = logging.getLogger("statehub.simworld")
 
@@ -160,6 +161,7 @@ class SimWorld:
     mode: str | None = "sim"  # the `--mode` override; None: as in hubs.toml
     loopback_port: int | None = None  # the station's bus: couples the operator to camera, dock and RFID
     say: Say = print
+    certs: Path | None = None  # the run's certificate directory when the station is secured (localcerts.py)
     devices: dict[str, DeviceConfig] = field(default_factory=dict)  # resource -> device, sim devices only
     simulators: dict[str, SimulatorPlugin] = field(default_factory=dict)  # resource -> its type's simulator
     emulated: list[str] = field(default_factory=list)  # devices that stay emulated in sim mode: no simulator
@@ -318,7 +320,8 @@ class SimWorld:
             self._spawn(flange.run(), f"flange {changer}")
         if self.loopback_port is None:
             return
-        self._bus = await ZenohBus(loopback_peer(self.loopback_port, self.config.network.lease_ms)).open()
+        zconfig = watcher_zenoh_config(self.config, self.model, self.loopback_port, self.certs)
+        self._bus = await ZenohBus(zconfig).open()
         keys = self.config.keys
         for operator in (r.name for r in self.model.resources if r.device_type == "operator"):
             self._couple_operator(operator, keys, couplers)
@@ -348,10 +351,11 @@ class SimWorld:
 
 
 async def start_world(config: StationConfig, model: Model, options: Any, loopback_port: int,
-                      say: Say = print) -> SimWorld | None:
+                      say: Say = print, *, certs: Path | None = None) -> SimWorld | None:
     """`hubctl up --mode sim`: the started world, or None after saying why it could not start."""
     world = SimWorld(config, model, Path(options.run_dir) / "sim", speed=options.speed, seed=options.seed,
-                     failure=dict(options.failure), mode=options.mode, loopback_port=loopback_port, say=say)
+                     failure=dict(options.failure), mode=options.mode, loopback_port=loopback_port, say=say,
+                     certs=certs)
     say(f"starting the sim world in {world.run_dir}/ ...")
     try:
         await world.start()

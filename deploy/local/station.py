@@ -20,10 +20,13 @@ from pathlib import Path
 from common.config import StationConfig, load_station
 from common.ctl import StatusMessage
 from common.messages import MessageError, decode
-from common.model import OperationState
+from common.model import Model, OperationState
 from common.process import free_port
-from common.zenoh_config import loopback_peer
+from common.security import operator_identity
+from common.station_net import security_banner
 from common.zenohbus import ZenohBus
+
+from .localcerts import local_certs, watcher_zenoh_config
 
 RUN_DIR = Path("var/up")
 STOP_GRACE_S = 5.0
@@ -79,18 +82,19 @@ class Options:
     run_dir: Path = RUN_DIR
 
 
-def child_commands(config: StationConfig, options: Options, port: int) -> list[Child]:
+def child_commands(config: StationConfig, options: Options, port: int, certs: Path | None = None) -> list[Child]:
     run_dir = options.run_dir
+    secured = ["--certs", str(certs)] if certs is not None else []
     controller = [sys.executable, "-m", "controller", "--config", options.config, "--loopback-port", str(port),
                   "--db", str(run_dir / "controller.sqlite")]
     if not options.resume:
         controller.append("--fresh")
     if options.hold:
         controller.append("--hold")
-    children = [Child("controller", controller, run_dir / "controller.log")]
+    children = [Child("controller", controller + secured, run_dir / "controller.log")]
     for hub in config.hubs.values():
         argv = [sys.executable, "-m", "hubs", hub.name, "--config", options.config, "--loopback-port", str(port),
-                "--speed", str(options.speed), "--seed", str(options.seed)]
+                "--speed", str(options.speed), "--seed", str(options.seed), *secured]
         if options.mode:
             argv += ["--mode", options.mode]
         for resource, p in options.failure.items():
@@ -167,13 +171,22 @@ async def _stop(children: list[Child]) -> None:
 
 async def run_station(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
     config, model = load_station(options.config)
+    with local_certs(config) as certs:
+        return await _run_station(options, say, config, model, certs)
+
+
+async def _run_station(options: Options, say, config: StationConfig, model: Model,  # type: ignore[no-untyped-def]
+                       certs: Path | None) -> int:
     port = free_port()
-    children = child_commands(config, options, port)
+    children = child_commands(config, options, port, certs)
     keys = config.keys
+    scheme = "tls" if certs is not None else "tcp"
     say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
         f"on 127.0.0.1:{port}, devices {options.mode or 'as in ' + options.config}, speed x{options.speed}")
+    say(f"  {security_banner(config)}" + (f" (this run's certificates: {certs})" if certs else ""))
     say(f"  logs in {options.run_dir}/")
-    say(f"  console: hubctl console --config {options.config} --connect tcp/127.0.0.1:{port}")
+    console = f" --as {operator_identity(config).name} --certs {certs}" if certs else ""
+    say(f"  console: hubctl console --config {options.config} --connect {scheme}/127.0.0.1:{port}{console}")
     began = time.monotonic()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
@@ -183,7 +196,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     if options.mode == "sim":  # the simulators, coupled; each hub is told where its devices' simulators are
         from .simworld import start_world
 
-        world = await start_world(config, model, options, port, say)
+        world = await start_world(config, model, options, port, say, certs=certs)
         if world is None:
             return 1
         for child in children:
@@ -194,7 +207,7 @@ async def run_station(options: Options, say=print) -> int:  # type: ignore[no-un
     result = 1
     last: StatusMessage | None = None
     try:
-        async with ZenohBus(loopback_peer(port, config.network.lease_ms)) as bus:
+        async with ZenohBus(watcher_zenoh_config(config, model, port, certs)) as bus:
             statuses = bus.subscribe(keys.ctl("status"))
             while True:
                 if stop.is_set():
