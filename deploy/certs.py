@@ -160,20 +160,24 @@ def hosts_of(config: StationConfig, identity: Identity) -> list[str]:
 
 
 def identities_for(config: StationConfig, target: str, role: Role | None) -> list[Identity]:
-    """The holders `target` names: a hub, the controller's name, an operator, or a host (every hub and
-    the controller on it). A given role must be the one hubs.toml gives (the ACL trusts the name)."""
-    roles = roles_of(config)
-    if target in roles:
-        if role is not None and role != roles[target]:
-            raise SecurityError(f"{config.path}: {target!r} is a {roles[target]} in hubs.toml, not a {role}")
-        return [Identity(target, roles[target])]
+    """The holders `target` names: a host (every hub and the controller on it; `role` picks among them), else
+    a hub, the controller's name or an operator, whose role in hubs.toml must be `role` if given (the
+    access control trusts the name, so the certificate's role must agree with it)."""
     on_host = [Identity(h.name, "hub") for h in config.hubs.values() if h.host == target]
     if config.controller.host == target:
         on_host.insert(0, Identity(config.controller.name, "controller"))
-    on_host = [i for i in on_host if role is None or i.role == role]
-    if not on_host:
-        raise SecurityError(f"{config.path}: {target!r} is no hub, controller, operator (security.operators) or host")
-    return on_host
+    if on_host:
+        chosen = [i for i in on_host if role is None or i.role == role]
+        if not chosen:
+            raise SecurityError(f"{config.path}: no {role} runs on host {target!r}")
+        return chosen
+    roles = roles_of(config)
+    if target not in roles:
+        raise SecurityError(f"{config.path}: {target!r} is no host, hub, controller or operator "
+                            f"(security.operators) of hubs.toml")
+    if role is not None and role != roles[target]:
+        raise SecurityError(f"{config.path}: {target!r} has role {roles[target]} in hubs.toml, not {role}")
+    return [Identity(target, roles[target])]
 
 
 def issue_for_station(directory: Path, config: StationConfig, identities: Iterable[Identity], *,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import re
+import stat
 import subprocess
 import sys
 import time
@@ -24,15 +25,20 @@ import pytest
 import zenoh
 from hub_process import HubProcess
 
-from common.config import StationConfig, load_station
+from common.acl import access_control
+from common.config import ConfigError, StationConfig, load_station
 from common.ctl import ConsoleRequest, StateSnapshot, StatusMessage
 from common.messages import Codec, HubStatus, decode, encode
 from common.model import Model
 from common.process import free_port
-from common.security import identity_of
+from common.security import SecurityError, identity_of, tls_files
 from common.station_net import station_zenoh_config
 from common.zenoh_config import zenoh_config
-from deploy.certs import init_ca, issue, issue_for_station
+from deploy.certs import identities_for, init_ca, issue, issue_for_station, role_in_certificate
+from deploy.remote.deploy import hub_cert_files
+from deploy.remote.layout import Layout
+from deploy.remote.scripts import install_unit
+from deploy.remote.units import controller_unit, hub_unit
 
 ROOT = Path(__file__).resolve().parent.parent
 ATTEMPTS = 10  # rogue sessions per kind of attack
@@ -225,3 +231,77 @@ def test_only_an_operator_certificate_may_query_ctl_request(station: Station, na
         console.close()
     assert replies == [1 if answered else 0] * 5, replies
 
+
+
+# --- the parts, without processes ------------------------------------------------------------------
+
+def _secured(tmp: Path, security: str = 'mode = "tls"\noperators = ["op"]') -> StationConfig:
+    path = tmp / "hubs.toml"
+    path.write_text((ROOT / "hubs.toml").read_text(encoding="utf-8") + f"\n[security]\n{security}\n")
+    return load_station(path)[0]
+
+
+@pytest.mark.parametrize(("security", "message"), [
+    ('mode = "tsl"', "security.mode: unknown mode 'tsl' (expected one of: tls, insecure)"),
+    ('operators = ["pi-tool"]', "security.operators: operator 'pi-tool' is already the name of a hub"),
+    ('certz = "x"', "security.certz: unknown key"),
+])
+def test_security_section_errors_name_the_key(tmp_path: Path, security: str, message: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        _secured(tmp_path, security)
+    assert message in str(error.value) and "hubs.toml:" in str(error.value)
+
+
+def test_certificates_name_holder_and_role_and_stay_private(tmp_path: Path) -> None:
+    config = _secured(tmp_path)
+    certs = tmp_path / "certs"
+    init_ca(certs, config.station.name)
+    on_decs = identities_for(config, "decs", None)  # a host: the controller and both hubs on it
+    assert [(i.name, i.role) for i in on_decs] == [("decs", "controller"), ("agv", "hub"), ("human", "hub")]
+    issued = issue_for_station(certs, config, [*on_decs, identity_of(config, "op")])
+    assert role_in_certificate(issued[1].certificate) == ("agv", "hub")
+    assert role_in_certificate(issued[3].certificate) == ("op", "operator")
+    assert "decs.local" in issued[0].hosts  # where the hubs connect to the controller: its name is checked
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in certs.iterdir()}
+    assert set(modes.values()) == {0o600} and stat.S_IMODE(certs.stat().st_mode) == 0o700
+    with pytest.raises(SecurityError, match=r"has role hub in hubs\.toml, not operator$"):
+        identities_for(config, "pi-tool", "operator")
+    with pytest.raises(SecurityError, match="inside the git work tree"):
+        init_ca(ROOT / "certs", config.station.name)
+    assert not (ROOT / "certs").exists()
+    with pytest.raises(SecurityError, match="hubctl certs issue pi-rsp --role hub"):
+        tls_files(certs, identity_of(config, "pi-rsp"))
+
+
+def test_access_control_gives_each_holder_only_its_own_keys(tmp_path: Path) -> None:
+    config = _secured(tmp_path)
+    acl = access_control(config, config.load_model())
+    rules = {r["id"]: r for r in acl["rules"]}
+    sends = {p["subjects"][0]: [rules[r] for r in p["rules"]] for p in acl["policies"] if p["id"].endswith("-sends")}
+    puts = {s: sorted(k for r in rs if "put" in r["messages"] for k in r["key_exprs"]) for s, rs in sends.items()}
+    assert puts["hub-pi-tool"] == ["engine_assembly/hub/pi-tool/selftest", "engine_assembly/res/lift/state",
+                                   "engine_assembly/res/nr/state"]
+    assert puts["controller-decs"] == ["engine_assembly/ctl/**", "engine_assembly/res/*/cmd"]
+    assert puts["operator-op"] == []
+    queries = {s: [k for r in rs if "query" in r["messages"] for k in r["key_exprs"]] for s, rs in sends.items()}
+    assert "engine_assembly/ctl/request" in queries["operator-op"] and queries["hub-pi-tool"] == []
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert subjects["controller-decs"] == ["decs"] and len(subjects) == len(config.hubs) + 2
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+
+
+def test_units_and_deploy_ship_and_use_the_hosts_certificate(tmp_path: Path) -> None:
+    config = _secured(tmp_path, f'mode = "tls"\noperators = ["op"]\ncerts = "{tmp_path / "certs"}"')
+    assert "--certs /opt/statehub/hubs/pi-tool/certs" in hub_unit(config, "pi-tool").text
+    assert "--certs /opt/statehub/controller/certs" in controller_unit(config).text
+    with pytest.raises(SecurityError, match=r"no .*ca\.crt .*hubctl certs init"):
+        hub_cert_files(config, "pi-tool")
+    init_ca(tmp_path / "certs", config.station.name)
+    issue_for_station(tmp_path / "certs", config, [identity_of(config, "pi-tool")])
+    names = [n for n, _ in hub_cert_files(config, "pi-tool")]
+    assert names == ["ca.crt", "pi-tool.crt", "pi-tool.key"]
+    script = install_unit(Layout(), "r1", "/tmp/stage", "u.service", [], certs=("/opt/statehub/hubs/pi-tool/certs",
+                                                                                 names))
+    assert "install -m 0600 -o statehub -g statehub /tmp/stage/pi-tool.key /opt/statehub/hubs/pi-tool/certs/" \
+           "pi-tool.key" in script
+    assert "install -d -m 0700 -o statehub -g statehub /opt/statehub/hubs/pi-tool/certs" in script

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TextIO
 
 from common.config import StationConfig, load_station
+from common.security import cert_dir, identity_of, tls_files
 from common.selftest import format_report
 from common.zenohbus import ZenohBus
 
@@ -123,6 +124,15 @@ def read_station_file(path: Path) -> bytes:
         return path.read_bytes()
     except OSError as exc:
         raise StationFileError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def hub_cert_files(config: StationConfig, hub: str) -> list[tuple[str, Path]]:
+    """The CA certificate and the hub's certificate and key to ship ([security] mode "tls"), from this
+    machine's certificate directory (`hubctl certs issue HUB`)."""
+    if config.security.mode != "tls":
+        return []
+    files = tls_files(cert_dir(config), identity_of(config, hub))
+    return [(p.name, p) for p in (files.root_ca, files.certificate, files.private_key)]
 
 
 def check_hub(config: StationConfig, hub: str) -> None:
@@ -231,7 +241,9 @@ async def deploy(opts: DeployOptions, out: TextIO | None = None) -> None:
             check_hub(config, hub)
             settings = config.hubs[hub]
             devices = ", ".join(f"{r} ({d.type}, {d.mode})" for r, d in settings.devices.items())
-            note.detail = f"hub {hub} on {settings.ssh_user}@{settings.host}: {devices}"
+            certs = hub_cert_files(config, hub)  # checked here, before anything is uploaded
+            links = f"mTLS, certificate {certs[1][1]}" if certs else "INSECURE plain TCP links ([security] mode)"
+            note.detail = f"hub {hub} on {settings.ssh_user}@{settings.host}: {devices}; {links}"
         target = target_of(config, hub, conn)
 
         with tempfile.TemporaryDirectory(prefix="hubctl-wheel-") as tmp:
@@ -293,7 +305,7 @@ async def install_steps(progress: Progress, remote: Remote, config: StationConfi
     staged = False  # a staging directory exists on the target, to remove if a step fails
     try:
         async with progress.step(f"upload to {host}") as note:
-            files: list[tuple[str, Path | bytes]] = [(unit, unit_text.encode())]
+            files: list[tuple[str, Path | bytes]] = [(unit, unit_text.encode()), *hub_cert_files(config, hub)]
             if not have_release:
                 files += [(wheel_name, wheel.path if wheel else b""), ("hubs.toml", hubs_toml)]
             payload = b"" if dry else pack_files(files)
@@ -320,7 +332,9 @@ async def install_steps(progress: Progress, remote: Remote, config: StationConfi
         async with progress.step(f"install {unit} on {host}") as note:
             groups = hub_groups(config.hubs[hub])
             try:
-                await remote.run(scripts.install_unit(layout, release, stage, unit, groups),
+                certs = (layout.certs(hub), [n for n, _ in hub_cert_files(config, hub)]) \
+                    if config.security.mode == "tls" else None
+                await remote.run(scripts.install_unit(layout, release, stage, unit, groups, certs=certs),
                                  what=f"install {unit}", privileged=True)
             except RemoteError as exc:
                 outcome = await revert(remote, layout, hub, unit, previous, release, switched=False)

@@ -51,8 +51,15 @@ def watch_endpoints(config: StationConfig, hub: str) -> list[str]:
 
 def watch_config(config: StationConfig, hub: str, *, listen: str = DEFAULT_LISTEN,
                  connect: list[str] | None = None) -> ZenohConfig:
+    """The watcher's session: in [security] mode "tls" with the first operator's certificate."""
     net = config.network_for(hub)
     endpoints = connect or watch_endpoints(config, hub)
+    if config.security.mode == "tls":
+        from common.security import operator_identity
+        from common.station_net import station_zenoh_config
+
+        return station_zenoh_config(config, config.load_model(), operator_identity(config), net,
+                                    listen=[listen] if listen and net.mode == "peer" else [], connect=endpoints)
     if net.mode == "client":
         return zenoh_config("client", connect=endpoints, lease_ms=net.lease_ms)
     return zenoh_config("peer", listen=[listen] if listen else [], connect=endpoints, lease_ms=net.lease_ms)

@@ -8,6 +8,7 @@
         .complete                               written last: a release without it is discarded and rebuilt
     /opt/statehub/hubs/<hub>/current  ->  a release   what the hub's unit runs (switched atomically)
     /opt/statehub/controller/current  ->  a release   likewise for the controller
+    /opt/statehub/hubs/<hub>/certs/, controller/certs/  ca.crt, NAME.crt, NAME.key (0600, tls mode only)
     /opt/statehub/releases.log                   one JSON line per deploy, rollback and revert
     /etc/systemd/system/statehub-hub-<hub>.service, statehub-controller.service
 
@@ -71,6 +72,10 @@ class Layout:
 
     def current(self, hub: str | None) -> str:
         return posixpath.join(self.process_dir(hub), "current")
+
+    def certs(self, hub: str | None) -> str:
+        """The process's certificate directory ([security] mode "tls"): kept across releases, 0700."""
+        return posixpath.join(self.process_dir(hub), "certs")
 
     def unit_path(self, unit: str) -> str:
         return posixpath.join(self.unit_dir, unit)

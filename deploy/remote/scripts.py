@@ -132,18 +132,23 @@ echo "installed {wheel}"
 """
 
 
-def install_unit(layout: Layout, release: str, stage: str, unit: str, groups: list[str]) -> str:
+def install_unit(layout: Layout, release: str, stage: str, unit: str, groups: list[str], *,
+                 certs: tuple[str, list[str]] | None = None) -> str:
     """Create the service user and device groups if missing, install the unit, reload, enable;
-    the staging directory is not needed after this."""
+    the staging directory is not needed after this. `certs`: (directory, staged file names) of the
+    process's certificate and key, installed readable by the service user only."""
     rel, unit_dir = q(layout.release(release)), q(layout.unit_dir)
     group_lines = "".join(f'getent group {q(g)} >/dev/null || groupadd --system {q(g)}\n' for g in groups)
+    owner = f"-o {SERVICE_USER} -g {SERVICE_USER}"
+    cert_lines = "" if certs is None else f"install -d -m 0700 {owner} {q(certs[0])}\n" + "".join(
+        f"install -m 0600 {owner} {q(stage)}/{q(n)} {q(certs[0])}/{q(n)}\n" for n in certs[1])
     return f"""set -eu
 {group_lines}if ! id -u {SERVICE_USER} >/dev/null 2>&1; then
   useradd --system --user-group --no-create-home --home-dir /nonexistent --shell /usr/sbin/nologin {SERVICE_USER}
 fi
 chown {SERVICE_USER}:{SERVICE_USER} {rel}/hubs.toml
 chmod 0600 {rel}/hubs.toml
-mkdir -p {rel}/units {unit_dir}
+{cert_lines}mkdir -p {rel}/units {unit_dir}
 cp {q(stage)}/{q(unit)} {rel}/units/{q(unit)}
 cp {q(stage)}/{q(unit)} {unit_dir}/.{q(unit)}.new
 mv -f {unit_dir}/.{q(unit)}.new {unit_dir}/{q(unit)}

@@ -162,6 +162,10 @@ def _exec(*args: str) -> str:
     return " ".join(_quote(a) for a in args)
 
 
+def _certs_option(config: StationConfig, layout: Layout, hub: str | None) -> list[str]:
+    return ["--certs", layout.certs(hub)] if config.security.mode == "tls" else []
+
+
 def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
              systemd_version: int = DEFAULT_SYSTEMD) -> Unit:
     settings = config.hubs.get(hub)
@@ -177,7 +181,7 @@ def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,
         f"Group={SERVICE_USER}",
         *([f"SupplementaryGroups={' '.join(groups)}"] if groups else []),
         f"ExecStartPre={_exec(*hub_process, '--config', toml, '--selftest')}",
-        f"ExecStart={_exec(*hub_process, '--config', toml)}",
+        f"ExecStart={_exec(*hub_process, '--config', toml, *_certs_option(config, layout, hub))}",
         f"SyslogIdentifier={name.removesuffix('.service')}",
         # The hub's device nodes: PrivateDevices would hide them (see the module docstring).
         "PrivateDevices=no",
@@ -207,7 +211,7 @@ def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
         f"StateDirectory={' '.join(state_dirs)}",
         "WorkingDirectory=%S/statehub",
         *extra,
-        f"ExecStart={_exec(python, '-P', '-m', 'controller', '--config', toml)}",
+        f"ExecStart={_exec(python, '-P', '-m', 'controller', '--config', toml, *_certs_option(config, layout, None))}",
         "SyslogIdentifier=statehub-controller",
         "PrivateDevices=yes",
         "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK",
