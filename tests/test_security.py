@@ -75,6 +75,9 @@ class Station:
 def _station_file(tmp: Path) -> Path:
     text = (ROOT / "hubs.toml").read_text(encoding="utf-8")
     text = re.sub(r"(?m)^lease_ms = \d+", "lease_ms = 500", text)
+    # pi-tool publishes its state at 2 Hz (and on change), so that a forged state sent at 20 Hz would be
+    # most of what the controller sees of nr, and show in its snapshots, were it let through.
+    text = re.sub(r"(?m)^rate_hz = 50$", "rate_hz = 2", text, count=1)
     path = tmp / "hubs.toml"
     path.write_text(text + '\n[security]\nmode = "tls"\noperators = ["op"]\n', encoding="utf-8")
     return path
@@ -168,6 +171,8 @@ def test_peers_without_a_certificate_of_the_station_cannot_link(station: Station
     }
     # The control: the same measurement with the station's own operator certificate links and receives.
     linked, received = _attempts(lambda: station.session("op"), station)
+    print(f"figures: {ATTEMPTS} attempts each, (linked, samples received): {outcomes}; "
+          f"operator certificate (control): ({linked}, {received})")
     assert linked == ATTEMPTS and received > 0, "the measurement does not see a legitimate session"
     assert outcomes == dict.fromkeys(outcomes, (0, 0)), outcomes
     assert station.hub.alive() and station.controller.poll() is None
@@ -195,11 +200,12 @@ def test_a_hubs_certificate_can_forge_no_command_and_no_other_resources_state(st
     own_state = rsp.encode_state(rsp.state({"locked_m": True, "tool_m": "none", "pressure_ok_m": True},
                                            status=HubStatus.OK, seq=1, hub="pi-rsp"))
     seen = {k: len(station.samples.get(k, [])) for k in (keys.state("nr"), keys.state("rsp"), keys.ctl("state"))}
-    deadline = time.monotonic() + SETTLE_S
+    deadline, forged = time.monotonic() + SETTLE_S, 0
     while time.monotonic() < deadline:
         rogue.put(keys.cmd("nr"), forged_command)
         rogue.put(keys.state("nr"), forged_state)
         rogue.put(keys.state("rsp"), own_state)  # allowed: pi-rsp's own state
+        forged += 1
         time.sleep(0.05)
     time.sleep(0.3)
     linked = len(list(rogue.info.peers_zid()))
@@ -208,6 +214,10 @@ def test_a_hubs_certificate_can_forge_no_command_and_no_other_resources_state(st
     hub_states = [nr.decode_state(p) for p in after[keys.state("nr")] if p != forged_state]
     snapshots = [decode(p, StateSnapshot).values for p in after[keys.ctl("state")]]
     assert linked >= 1 and own_state in after[keys.state("rsp")], "the rogue did not reach the station at all"
+    print(f"figures: {forged} forged commands (seq 2**62, the controller's id) and {forged} forged nr states "
+          f"with pi-rsp's certificate; hub states seen {len(hub_states)}, controller snapshots {len(snapshots)}, "
+          f"commands the rogue received {len(stolen)}, its own rsp states that arrived "
+          f"{after[keys.state('rsp')].count(own_state)}")
     taken = [s for s in hub_states if s.mirror is None or s.mirror.seq >= FORGED_SEQ or s.mirror.run_c or s.run_m]
     assert hub_states and not taken, f"the hub took the forged command: {taken[:3]}"
     assert snapshots and not any(v.get("nr.tqr_m") or v.get("nr.fail_m") for v in snapshots), \
@@ -229,6 +239,7 @@ def test_only_an_operator_certificate_may_query_ctl_request(station: Station, na
         replies = [_ask(console, station) for _ in range(5)]
     finally:
         console.close()
+    print(f"figures: {name}'s certificate, replies to 5 ctl/request queries: {replies}")
     assert replies == [1 if answered else 0] * 5, replies
 
 
