@@ -72,14 +72,22 @@ class Station:
         return zenoh.open(zconfig)
 
 
-def _station_file(tmp: Path) -> Path:
+def _with_security(body: str) -> str:
+    """The reference hubs.toml with `body` as its [security] section."""
     text = (ROOT / "hubs.toml").read_text(encoding="utf-8")
+    text, replaced = re.subn(r"(?ms)^\[security\]\n.*?(?=^(\[|# ---))", "", text)
+    assert replaced == 1, "hubs.toml has no [security] section to replace"
+    return f"{text}\n[security]\n{body}\n"
+
+
+def _station_file(tmp: Path) -> Path:
+    text = _with_security('mode = "tls"\noperators = ["op"]')
     text = re.sub(r"(?m)^lease_ms = \d+", "lease_ms = 500", text)
     # pi-tool publishes its state at 2 Hz (and on change), so that a forged state sent at 20 Hz would be
     # most of what the controller sees of nr, and show in its snapshots, were it let through.
     text = re.sub(r"(?m)^rate_hz = 50$", "rate_hz = 2", text, count=1)
     path = tmp / "hubs.toml"
-    path.write_text(text + '\n[security]\nmode = "tls"\noperators = ["op"]\n', encoding="utf-8")
+    path.write_text(text, encoding="utf-8")
     return path
 
 
@@ -248,7 +256,7 @@ def test_only_an_operator_certificate_may_query_ctl_request(station: Station, na
 
 def _secured(tmp: Path, security: str = 'mode = "tls"\noperators = ["op"]') -> StationConfig:
     path = tmp / "hubs.toml"
-    path.write_text((ROOT / "hubs.toml").read_text(encoding="utf-8") + f"\n[security]\n{security}\n")
+    path.write_text(_with_security(security), encoding="utf-8")
     return load_station(path)[0]
 
 
