@@ -94,14 +94,14 @@ def open_bus(target: Target) -> tuple[BusThread, str]:
     connect = f"connecting to {', '.join(target.connect)}" if target.connect else ""
     where = "; ".join(w for w in (listen, connect) if w) or "with no endpoints"
     try:
-        config = zenoh_config(target.mode, target.listen, target.connect, target.lease_ms)
+        config = zenoh_config(target.mode, target.listen, target.connect, target.lease_ms, tls=target.tls)
         return BusThread(config, description=where).start(), where
     except LinkError as first:
         if not target.listen or target.mode != "peer":
             raise
         endpoints = [e.replace("0.0.0.0", "127.0.0.1") for e in target.listen]
         fallback = f"connecting to {', '.join(endpoints)} (cannot listen there: {first})"
-        config = zenoh_config("peer", (), endpoints, target.lease_ms)
+        config = zenoh_config("peer", (), endpoints, target.lease_ms, tls=target.tls)
         return BusThread(config, description=fallback).start(), fallback
 
 
@@ -138,10 +138,7 @@ def cmd_test(args: argparse.Namespace) -> int:
     except Refused as exc:
         print(f"hubctl test: refused: {exc}")
         return 2
-    network = (config.network_for("controller") if args.loopback_port is None
-               else config.loopback_network("controller", args.loopback_port))
-    target = Target(model, config.station.name, tuple(network.listen), tuple(network.connect), network.mode,
-                    network.lease_ms, config.controller.command_rate_hz)
+    target = Target.of(config, model, loopback_port=args.loopback_port, certs=args.certs)
     options = Options(examples=args.examples, max_steps=args.max_steps, deadline=args.deadline, seed=args.seed)
     print(f"hubctl test {args.hub}: {', '.join(selection.resources)} against model {model.name}; "
           f"{options.examples} examples of up to {options.max_steps} commands, deadline {options.deadline:g} s",
@@ -231,6 +228,9 @@ def register_test_command(sub: argparse._SubParsersAction) -> argparse.ArgumentP
                         help="run on loopback: listen on 127.0.0.1:PORT, where the hub (started with the same "
                              "--loopback-port) connects")
     parser.add_argument("--seed", type=int, help="Hypothesis seed, to repeat a run")
+    parser.add_argument("--certs", metavar="DIR",
+                        help="with [security] mode = \"tls\": the certificate directory holding the controller's "
+                             "certificate (default: [security] certs)")
     parser.add_argument("--model", help="hold the hub to this model (module:function) instead of the station's")
     parser.set_defaults(func=cmd_test)
     return parser

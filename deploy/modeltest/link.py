@@ -28,7 +28,7 @@ from common.ctl import StatusMessage
 from common.keys import Keys, station_keys
 from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
 from common.model import Kind, Model, Value
-from common.zenoh_config import ZenohConfig, zenoh_config
+from common.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
 from common.zenohbus import ZenohBus
 
 log = logging.getLogger("statehub.modeltest")
@@ -115,16 +115,16 @@ _SHARED_LOCK = threading.Lock()
 
 
 def shared_bus(*, listen: Iterable[str] = (), connect: Iterable[str] = (), mode: str = "peer",
-               lease_ms: int = 2000) -> BusThread:
+               lease_ms: int = 2000, tls: TlsSettings | None = None) -> BusThread:
     """One BusThread per network setting for the whole process (pytest sessions): a listener
     bound once stays bound, however many tests use it. Closed at exit."""
-    key = (mode, tuple(listen), tuple(connect), lease_ms)
+    key = (mode, tuple(listen), tuple(connect), lease_ms, tls.certificate if tls else None)
     with _SHARED_LOCK:
         existing = _SHARED.get(key)
         if existing is not None and existing.running:
             return existing
         described = f"(listen {', '.join(key[1]) or 'nothing'}; connect {', '.join(key[2]) or 'nothing'})"
-        thread = BusThread(zenoh_config(mode, listen=key[1], connect=key[2], lease_ms=lease_ms),
+        thread = BusThread(zenoh_config(mode, listen=key[1], connect=key[2], lease_ms=lease_ms, tls=tls),
                            description=described).start()
         _SHARED[key] = thread
         return thread

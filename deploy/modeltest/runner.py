@@ -19,8 +19,11 @@ from hypothesis import HealthCheck, Phase, Verbosity, given, seed, settings
 from hypothesis import strategies as st
 from hypothesis.errors import Flaky
 
-from common.config import load_config, load_station
+from common.config import StationConfig, load_config, load_station
 from common.model import Model
+from common.security import identity_of, tls_endpoints
+from common.station_net import tls_settings
+from common.zenoh_config import TlsSettings
 
 from .link import BusThread, LinkError, ResourceLink, shared_bus
 from .oracle import ResourceOracle
@@ -41,6 +44,21 @@ class Target:
     mode: str = "peer"
     lease_ms: int = 2000
     command_rate_hz: float = 10.0
+    # [security] mode "tls": the controller's certificate and the station's access control
+    tls: TlsSettings | None = field(default=None, compare=False)
+
+    @classmethod
+    def of(cls, config: StationConfig, model: Model, *, loopback_port: int | None = None,
+           certs: str | None = None) -> Target:
+        """The station of `config`, reached as its controller would be (with its certificate in tls mode)."""
+        network = (config.network_for("controller") if loopback_port is None
+                   else config.loopback_network("controller", loopback_port))
+        listen, connect = network.listen, network.connect
+        tls = tls_settings(config, model, identity_of(config, "controller"), certs)
+        if tls is not None:
+            listen, connect = tls_endpoints(listen, config.path), tls_endpoints(connect, config.path)
+        return cls(model, config.station.name, tuple(listen), tuple(connect), network.mode, network.lease_ms,
+                   config.controller.command_rate_hz, tls)
 
     @classmethod
     def from_config(cls, path: str | Path, *, loopback_port: int | None = None, model: Model | None = None) -> Target:
@@ -51,13 +69,11 @@ class Target:
             config, model = load_station(path)
         else:
             config = load_config(path)
-        network = (config.network_for("controller") if loopback_port is None
-                   else config.loopback_network("controller", loopback_port))
-        return cls(model, config.station.name, tuple(network.listen), tuple(network.connect),
-                   network.mode, network.lease_ms, config.controller.command_rate_hz)
+        return cls.of(config, model, loopback_port=loopback_port)
 
     def bus(self) -> BusThread:
-        return shared_bus(listen=self.listen, connect=self.connect, mode=self.mode, lease_ms=self.lease_ms)
+        return shared_bus(listen=self.listen, connect=self.connect, mode=self.mode, lease_ms=self.lease_ms,
+                          tls=self.tls)
 
 
 @dataclass
