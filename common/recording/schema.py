@@ -1,0 +1,207 @@
+"""The layout of a run recording: one SQLite file per run, append-only.
+
+Two tables::
+
+    run_meta(key TEXT PRIMARY KEY, value TEXT)   -- JSON values; the keys are RunMeta's fields
+    events(id INTEGER PRIMARY KEY,               -- insertion order: the order the controller acted in
+           t REAL,                               -- seconds since the run's start, on the controller's
+                                                 -- clock (virtual time in `up --in-process`)
+           kind TEXT,                            -- a RecordKind
+           key TEXT,                             -- what the record is about (resource, hub, plan, ...)
+           data BLOB)                            -- MessagePack of the kind's struct (DATA_TYPES)
+
+indexed by `t` and by `(kind, key, t)`. A run longer than `[controller.recording] max_mb` goes on in
+a next part file (`part` 2, 3, ... with the same `run` id); see reader.py.
+
+What each kind records (key: data):
+
+* `state` (resource: StateRecord): the measured values that changed, the hub's status, the mirrored
+  command seq. A hub publishes at 50 Hz; only what the controller took that differs is recorded.
+* `command` (resource: CommandRecord): a changed command as sent, with its seq.
+* `liveliness` (hub: LivelinessRecord): its token appeared or vanished.
+* `watchdog` (resource: WatchdogRecord): the verdict turned unhealthy (with the reason) or recovered.
+* `tick` ("": TickRecord): the engine ticked (replay ticks at the same points).
+* `restore` ("persisted" | "mirrors": RestoreRecord): values loaded at start, before the first tick.
+* `plan_request` (plan id: PlanRequestRecord): a plan asked for: goals, cause, start state's hash.
+* `plan` (plan id: PlanRecord): an answer to that request: steps or why none, member, time, expansions,
+  and whether the controller took it.
+* `operation` (operation: OperationRecord): an operation's state changed (`from` -> `to`).
+* `request` (action: RequestRecord): a console request and the controller's answer.
+* `event` (event kind: the `common.ctl` Event as encoded): the controller's event log (replans, faults).
+
+The plan id is the request's generation, as text.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+from typing import Literal
+
+import msgspec
+
+from common.ctl import ConsoleEvent, ConsoleRequest
+from common.model import Model, Value
+
+FORMAT = 1  # bump on any incompatible change of the tables or of the structs below
+
+DDL = """
+CREATE TABLE IF NOT EXISTS run_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY,
+    t REAL NOT NULL,
+    kind TEXT NOT NULL,
+    key TEXT NOT NULL,
+    data BLOB NOT NULL
+);
+CREATE INDEX IF NOT EXISTS events_t ON events (t);
+CREATE INDEX IF NOT EXISTS events_kind_key_t ON events (kind, key, t);
+"""
+
+SUFFIX = ".sqlite"
+
+
+class RecordKind(enum.StrEnum):
+    STATE = "state"
+    COMMAND = "command"
+    LIVELINESS = "liveliness"
+    WATCHDOG = "watchdog"
+    TICK = "tick"
+    RESTORE = "restore"
+    PLAN_REQUEST = "plan_request"
+    PLAN = "plan"
+    OPERATION = "operation"
+    REQUEST = "request"
+    EVENT = "event"
+
+
+Mode = Literal["up", "in-process", "service"]
+Outcome = Literal["finished", "stopped", "stuck", "running"]
+
+
+class RunMeta(msgspec.Struct, kw_only=True):
+    """A run's description (`run_meta`); `ended`, `outcome` and the counts are written when it ends
+    (`outcome` stays "running" in a recording whose controller was killed)."""
+
+    format: int = FORMAT
+    run: str = ""  # the run's id, shared by its part files
+    part: int = 1
+    station: str = ""
+    model: str = ""  # module:attribute
+    model_hash: str = ""  # station_model_hash: a replay refuses another model
+    config: str = ""  # hubs.toml path ("" in-process)
+    mode: Mode = "service"
+    seed: int | None = None  # of emulated outcomes (up, in-process)
+    budget: dict[str, int] | None = None  # planner counts when they bound the search (in-process)
+    requested: list[str] = msgspec.field(default_factory=list)  # operations requested at start
+    started: float = 0.0  # wall clock (time.time())
+    ended: float | None = None
+    outcome: Outcome = "running"
+    operations_done: int = 0
+    operations_total: int = 0
+    plans: int = 0
+    replans: int = 0
+    faults: int = 0
+    duration: float = 0.0  # on the controller's clock (virtual in-process)
+    note: str = ""  # why it ended, when not finished
+
+
+class StateRecord(msgspec.Struct, kw_only=True, omit_defaults=True):
+    values: dict[str, Value] = msgspec.field(default_factory=dict)  # by variable path; changed ones only
+    status: str = ""  # the hub's HubStatus ("" in-process: no hub)
+    detail: str = ""
+    mirror_seq: int | None = None  # the seq of ours the hub mirrors
+
+
+class CommandRecord(msgspec.Struct, kw_only=True):
+    values: dict[str, Value]  # every command variable of the resource, by path
+    seq: int
+
+
+class LivelinessRecord(msgspec.Struct, kw_only=True):
+    alive: bool
+
+
+class WatchdogRecord(msgspec.Struct, kw_only=True):
+    verdict: Literal["unhealthy", "recovered"]
+    detail: str = ""
+
+
+class TickRecord(msgspec.Struct, kw_only=True):
+    pass
+
+
+class RestoreRecord(msgspec.Struct, kw_only=True):
+    values: dict[str, Value]
+
+
+class PlanRequestRecord(msgspec.Struct, kw_only=True):
+    generation: int
+    goals: list[str]
+    reason: str  # ReplanReason value
+    detail: str = ""
+    disabled: list[str] = msgspec.field(default_factory=list)
+    start: str = ""  # state_hash of the state planned from
+
+
+class StepRecord(msgspec.Struct, array_like=True):
+    transition: str
+    outcome: int
+
+
+class PlanRecord(msgspec.Struct, kw_only=True):
+    generation: int
+    answer: Literal["first", "improvement"]
+    taken: bool  # the controller adopted it (a late first answer or a longer improvement is not)
+    goals: list[str]
+    reason: str = ""  # the request's ReplanReason value
+    detail: str = ""
+    found: bool = True
+    steps: list[StepRecord] = msgspec.field(default_factory=list)
+    no_plan: str = ""  # why there is none (found False; "" with no goals)
+    unreachable: list[str] = msgspec.field(default_factory=list)
+    proven: bool = False
+    ms: float = 0.0  # the planner's wall time for this answer
+    member: str = ""  # the portfolio member that found it
+    expansions: int = 0
+    minimal: bool = False
+    planned_alone: str = ""  # the one goal planned alone when all together had no plan in the budget
+
+
+class OperationRecord(msgspec.Struct, kw_only=True, rename={"before": "from", "after": "to"}):
+    before: str  # OperationState values
+    after: str
+
+
+class RequestRecord(msgspec.Struct, kw_only=True):
+    request: ConsoleRequest
+    accepted: bool
+    reason: str = ""
+
+
+DATA_TYPES: dict[RecordKind, type] = {
+    RecordKind.STATE: StateRecord,
+    RecordKind.COMMAND: CommandRecord,
+    RecordKind.LIVELINESS: LivelinessRecord,
+    RecordKind.WATCHDOG: WatchdogRecord,
+    RecordKind.TICK: TickRecord,
+    RecordKind.RESTORE: RestoreRecord,
+    RecordKind.PLAN_REQUEST: PlanRequestRecord,
+    RecordKind.PLAN: PlanRecord,
+    RecordKind.OPERATION: OperationRecord,
+    RecordKind.REQUEST: RequestRecord,
+    RecordKind.EVENT: ConsoleEvent,
+}
+
+RecordData = (StateRecord | CommandRecord | LivelinessRecord | WatchdogRecord | TickRecord | RestoreRecord
+              | PlanRequestRecord | PlanRecord | OperationRecord | RequestRecord | ConsoleEvent)
+
+
+def station_model_hash(model: Model) -> str:
+    """A stable hash of the whole model (its variables, transitions, operations and specifications)."""
+    return hashlib.sha256(repr(model).encode()).hexdigest()[:16]
+
+
+def state_hash(state: tuple[Value, ...]) -> str:
+    """A short hash of a state tuple: a replay checks it plans from the same state without storing it."""
+    return hashlib.blake2b(msgspec.msgpack.encode(state), digest_size=8).hexdigest()
