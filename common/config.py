@@ -31,6 +31,11 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     operators = ["operator"]     # names whose certificates have the operator role (consoles, hubctl)
     verify_names = true          # a listener's certificate must name the host connected to
 
+    [controller.recording]                       # every run is recorded (common/recording); all optional
+    dir    = "var/runs"                          # one SQLite file per run, relative to the working dir
+    max_mb = 200                                 # a run goes on in a next part file beyond this size
+    keep   = 50                                  # recording files kept in dir: the oldest are deleted
+
     [hubs.pi-tool]               # one table per hub (ECU); the table name is the hub name
     host              = "pi-tool"   # machine (hostname or address) for deploy/ssh
     ssh_user          = "pi"
@@ -106,6 +111,12 @@ class SecurityConfig(msgspec.Struct, frozen=True):
     verify_names: bool = True  # a listener's certificate must name the host a process connects to
 
 
+class RecordingConfig(msgspec.Struct, frozen=True):
+    dir: Annotated[str, msgspec.Meta(min_length=1)] = "var/runs"
+    max_mb: Annotated[float, msgspec.Meta(gt=0)] = 200.0
+    keep: Annotated[int, msgspec.Meta(ge=1)] = 50
+
+
 class ControllerConfig(msgspec.Struct, frozen=True):
     host: str
     name: str = "controller"
@@ -116,6 +127,7 @@ class ControllerConfig(msgspec.Struct, frozen=True):
     stale_after_s: Seconds = 0.5
     listen: list[str] | None = None
     connect: list[str] | None = None
+    recording: RecordingConfig = RecordingConfig()
 
 
 class DeviceConfig(msgspec.Struct, frozen=True):
@@ -360,7 +372,7 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
     else:
         table = checker.table(data["controller"], ("controller",))
         if table is not None:
-            controller = checker.section(ControllerConfig, table, ("controller",))
+            controller = _load_controller(checker, table)
             if controller is not None:
                 checker.where(("controller",), controller.host)
 
@@ -383,6 +395,17 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
     if model is not None:
         check_against_model(config, model, text=text)
     return config
+
+
+def _load_controller(checker: _Checker, table: dict[str, Any]) -> ControllerConfig | None:
+    recording: RecordingConfig | None = RecordingConfig()
+    if "recording" in table:
+        path = ("controller", "recording")
+        recording_table = checker.table(table["recording"], path)
+        recording = None if recording_table is None else checker.section(RecordingConfig, recording_table, path)
+    controller = checker.section(ControllerConfig, table, ("controller",), extra={"recording": recording},
+                                 skip=("recording",))
+    return controller if recording is not None else None
 
 
 def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str]) -> HubConfig | None:

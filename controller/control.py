@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from common.ctl import (
     Event,
@@ -33,6 +34,14 @@ from .safety import SafetyMonitor
 RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
 RETRY_MAX_S = 60.0
 AT_START = ReplanCause(ReplanReason.START)
+
+
+class InputListener(Protocol):
+    """What a run recording hears from the core: inputs that come from inside the controller (persisted
+    values and mirrors loaded, command variables unknown while their resource is held)."""
+
+    def loaded(self, values: Mapping[str, Value]) -> None: ...
+    def unknown_set(self, paths: list[str]) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -151,6 +160,7 @@ class ControlCore:
         self.forced: dict[int, Force] = {}  # by state index
         self._blocked: frozenset[str] = frozenset()  # writing a forced or reading an unknown variable
         self.unknown: frozenset[int] = frozenset()  # command variables of held resources (controller/hold.py)
+        self.listener: InputListener | None = None  # told the values loaded and unknown beside the loop's inputs
         self.safety = SafetyMonitor(compiled)
         self._deliberate_names = frozenset(t.name for t in compiled.deliberate)
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
@@ -164,14 +174,15 @@ class ControlCore:
             if name not in self.requested:
                 self.requested.append(name)
 
-    def ingest(self, values: Mapping[str, Value]) -> bool:
-        """Take measured values; True if anything changed."""
+    def ingest(self, values: Mapping[str, Value]) -> dict[str, Value]:
+        """Take measured values; those that changed (empty: nothing did), a forced variable's own value too."""
+        hidden: dict[str, Value] = {}
         if self.forced:
-            values = self._behind_forces(values)
+            values, hidden = self._behind_forces(values)
         changed = {p: v for p, v in values.items() if self.state[self.measured_indices[p]] != v}
         if changed:
             self.state = self.compiled.with_values(self.state, changed)
-        return bool(changed)
+        return changed | hidden if hidden else changed
 
     def set_disabled(self, resources: frozenset[str]) -> None:
         if resources != self.disabled:
@@ -181,6 +192,8 @@ class ControlCore:
     def load(self, values: Mapping[str, Value]) -> None:
         """Restore persisted or mirrored values of any kind (restart)."""
         self.state = self.compiled.with_values(self.state, values)
+        if self.listener is not None:
+            self.listener.loaded(values)
         self._want_plan(ReplanCause(ReplanReason.RESTORED))
 
     # --- queries ------------------------------------------------------------------------
@@ -310,14 +323,15 @@ class ControlCore:
             self.events.log.append(note)
         return result
 
-    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:
+    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> bool:
+        """Take the answer to `request`; False if it came too late (a newer request is due or under way)."""
         self.planning = False
         if request.generation != self.generation or self.need_plan_reason is not None:
-            return  # the world changed while planning: a new request is already due
+            return False  # the world changed while planning: a new request is already due
         self.planned_goals = frozenset(request.goals)
         if result is None:
             self.progress = None
-            return
+            return True
         if isinstance(result, NoPlan):
             self.events.no_plans += 1
             now = self.clock()
@@ -335,7 +349,7 @@ class ControlCore:
                 self.events.log.append(NoPlanFound(news, result.proven, result.reason))
             self._want_plan(ReplanCause(ReplanReason.GOALS_WITHOUT_PLAN))
             self.progress = None
-            return
+            return True
         self.events.plans += 1
         for name in request.goals:
             error = self.errors.pop(name, None)
@@ -346,6 +360,7 @@ class ControlCore:
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self.progress = PlanProgress(self.compiled, result)
+        return True
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
         """A shorter plan for the request whose plan is under way (the portfolio kept searching): taken
@@ -422,25 +437,29 @@ class ControlCore:
     def set_unknown(self, paths: Iterable[str]) -> None:
         """Command variables whose values the controller does not know (its resource is held): no transition
         and no operation start reading them fires, and no specification reading them is evaluated."""
+        paths = list(paths)
         self.unknown = frozenset(self.compiled.index[p] for p in paths)
         self._blocks_changed()
+        if self.listener is not None:
+            self.listener.unknown_set(paths)
 
     def _blocks_changed(self) -> None:
         forced, unknown = set(self.forced), self.unknown
         self._blocked = frozenset(t.name for t in (*self.compiled.automatic, *self.compiled.deliberate)
                                   if t.writes & forced or t.reads & unknown)
 
-    def _behind_forces(self, values: Mapping[str, Value]) -> dict[str, Value]:
-        """The measured values that no force hides; a hidden one is kept as the variable's own value."""
+    def _behind_forces(self, values: Mapping[str, Value]) -> tuple[dict[str, Value], dict[str, Value]]:
+        """The measured values that no force hides, and the hidden ones that changed (kept as the
+        variable's own value)."""
         index = self.compiled.index
-        free = {}
+        free, hidden = {}, {}
         for path, value in values.items():
             held = self.forced.get(index[path])
             if held is None:
                 free[path] = value
-            else:
-                held.own = value
-        return free
+            elif held.own != value:
+                held.own = hidden[path] = value
+        return free, hidden
 
     def _hold_forces(self) -> None:
         # Ability transitions that write a forced variable are blocked, but an operation's start and

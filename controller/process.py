@@ -13,6 +13,7 @@ from pathlib import Path
 
 from common.config import load_station
 from common.process import EXPECTED_ERRORS, network, positive, run_main, setup_logging, stop_on_signals
+from common.recording.schema import RunMeta
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,12 +28,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hold", action="store_true",
                         help="with no persisted requests, start no operation: the operator starts them from the "
                              "console")
+    parser.add_argument("--no-record", action="store_true",
+                        help="do not record the run (default: into [controller.recording] dir, see `hubctl replay`)")
+    # Set by `hubctl up`: what the recording says about the run.
+    parser.add_argument("--run-mode", choices=("service", "up"), default="service", help=argparse.SUPPRESS)
+    parser.add_argument("--run-seed", type=int, help=argparse.SUPPRESS)
     parser.add_argument("-v", "--verbose", action="store_true")
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
                          fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False,
-                         certs: str | None = None) -> int:
+                         certs: str | None = None, record: RunMeta | None = None) -> int:
     from common.security import identity_of
     from common.station_net import security_banner, station_zenoh_config
     from common.zenohbus import ZenohBus
@@ -48,10 +54,13 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
                                    network(config, "controller", loopback_port), certs=certs)
     stop = stop_on_signals()
     async with ZenohBus(zconfig) as bus:
-        service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold)
-        logging.getLogger("statehub.controller").info(
-            "controller %s: station %s, %d resources, %d operations; %s", service.controller_id,
-            config.station.name, len(service.hubs_of), len(model.operations), security_banner(config))
+        service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold,
+                                    record=record)
+        log = logging.getLogger("statehub.controller")
+        log.info("controller %s: station %s, %d resources, %d operations; %s", service.controller_id,
+                 config.station.name, len(service.hubs_of), len(model.operations), security_banner(config))
+        if service.recorder.path is not None:
+            log.info("recording the run into %s", service.recorder.path)
         await service.run(stop)
     return 0
 
@@ -59,8 +68,10 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
 def serve(args: argparse.Namespace) -> int:
     """Run the controller the options of `add_arguments` describe, until SIGINT or SIGTERM."""
     setup_logging("controller", args.verbose)
+    record = None if args.no_record else RunMeta(mode=args.run_mode, seed=args.run_seed)
     return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
-                                      mirror_wait_s=args.mirror_wait, hold=args.hold, certs=args.certs))
+                                      mirror_wait_s=args.mirror_wait, hold=args.hold, certs=args.certs,
+                                      record=record))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

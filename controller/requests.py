@@ -85,12 +85,15 @@ class Requests:
     """Checks and applies console requests to a `ControlCore`.
 
     `persist(requested)` stores the requested operations (a restart keeps what the operator
-    started); `wake()` asks the controller for a tick now rather than at its next period.
+    started); `wake()` asks the controller for a tick now rather than at its next period;
+    `answered(request, reply)` is told every request and its answer.
     """
 
     def __init__(self, core: ControlCore, *, persist: Callable[[list[str]], None] = lambda _: None,
-                 wake: Callable[[], None] = lambda: None) -> None:
+                 wake: Callable[[], None] = lambda: None,
+                 answered: Callable[[ConsoleRequest, ConsoleReply], None] = lambda _request, _reply: None) -> None:
         self.core = core
+        self.answered = answered  # after each request is applied (the run recording)
         self.model = core.model
         self.compiled = core.compiled
         self.persist = persist
@@ -141,6 +144,7 @@ class Requests:
         event = RequestAnswered(request.describe(), reply.accepted, reply.reason, request.origin)
         self.core.events.log.append(event)
         log.info("%s", event.text)
+        self.answered(request, reply)
         if reply.accepted:
             self.wake()
         return reply

@@ -20,6 +20,8 @@ import time
 import uuid
 from collections.abc import Callable, Iterable
 
+import msgspec
+
 from common.bus import Bus, Sample
 from common.config import StationConfig
 from common.ctl import (
@@ -28,6 +30,7 @@ from common.ctl import (
     LoopStats,
     NoPlanFound,
     OperationInfo,
+    PlannedAlone,
     PlanStepInfo,
     ResourceHealthInfo,
     StateSnapshot,
@@ -37,11 +40,13 @@ from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.model.compiled import State
 from common.sdnotify import Notifier
+from common.recording.schema import RunMeta
 
 from .control import PlanRequest
 from .hold import CommandHold
 from .planner import NoPlan, Plan, PlanStep
 from .planworker import PlannerProcess
+from .recorder import RunRecorder, StepClock, open_recording
 from .requests import Requests
 from .stack import build_controller_stack
 from .state import StateStore
@@ -86,7 +91,7 @@ def _ms(ordered: list[float], q: float) -> float:
 class ControllerService:
     def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
                  mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None,
-                 planner_process: bool = True, hold: bool = False) -> None:
+                 planner_process: bool = True, hold: bool = False, record: RunMeta | None = None) -> None:
         self.config = config
         self.model = model
         self.bus = bus
@@ -94,7 +99,8 @@ class ControllerService:
         self.controller_id = f"{config.controller.name}-{uuid.uuid4().hex[:8]}"
         stack = build_controller_stack(model)
         self.compiled = stack.compiled
-        self.core = stack.control_core()
+        self.clock = StepClock()  # the core's: one reading per step, what the recording and a replay use
+        self.core = stack.control_core(self.clock)
         self.store = StateStore(db or config.controller.db)
         self.hubs_of = {r: hub.name for r, hub in config.resources.items()}
         self.watchdog = Watchdog(self.hubs_of, stale_after=config.controller.stale_after_s,
@@ -127,6 +133,9 @@ class ControllerService:
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
+        sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
+            record, station=config.station.name, model=config.station.model, config=config.path), model)
+        self.recorder = RunRecorder(self.core, self.clock, sink)
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:
@@ -141,6 +150,7 @@ class ControllerService:
             everything = [] if self.hold else [op.name for op in self.model.operations]
             self.requested = list(requested) if isinstance(requested, list) else everything
         self.core.request(*self.requested)
+        self.recorder.requested(self.requested)
         self.store.save({}, {"requested": self.requested})
         self._last_persisted = {i: self.core.state[i] for i in self.persisted_indices}
 
@@ -167,7 +177,7 @@ class ControllerService:
             tasks.append(asyncio.create_task(self._resend_commands(stop), name="resend"))
             tasks.append(asyncio.create_task(self._publish_status_loop(stop), name="status"))
             requests = Requests(self.core, persist=lambda ops: self.store.save({}, {"requested": ops}),
-                                wake=self._dirty.set)
+                                wake=self._dirty.set, answered=self.recorder.request)
             tasks.append(asyncio.create_task(requests.serve(self.bus, self.keys.ctl("request")), name="requests"))
             await self._tick_loop(stop)
         finally:
@@ -183,6 +193,7 @@ class ControllerService:
             if self.planner_process is not None:
                 self.planner_process.close()
             self.store.close()
+            self.recorder.finish("finished" if self.core.all_finished() else "stopped")
 
     async def _ingest_states(self) -> None:
         # In batches: at hundreds of resources at 50 Hz, a loop wake-up, a core update and a tick
@@ -207,6 +218,7 @@ class ControllerService:
         watchdog, mirrors, controller_id = self.watchdog, self.mirrors, self.controller_id
         measured: dict[str, Value] = {}
         published: list[float] = []
+        hub_states = []
         for sample in samples:
             route = routes.get(sample.key)
             if route is None:
@@ -230,12 +242,16 @@ class ControllerService:
             if resource in self.command_hold.held:
                 self.command_hold.arrived(resource, None if mirror is None else codec.values(mirror), state.status)
             watchdog.state_received(resource, state.status, state.detail, mirrored_seq)
+            hub_states.append((resource, state.status, state.detail, mirrored_seq))
             for path, name in fields:
                 value = getattr(state, name)
                 if value is not None:  # unknown (device lost): the last known value stands
                     measured[path] = value
-        if measured and self.core.ingest(measured):
+        self.clock.advance()
+        changed = self.core.ingest(measured) if measured else {}
+        if changed:
             self._dirty.set()
+        self.recorder.ingested(changed, hub_states)
         now = time.time()  # ingested now, when the core holds them: the age includes decoding the batch
         self.meter.ages.extend(now - t for t in published)
 
@@ -244,6 +260,7 @@ class ControllerService:
             hub = self.keys.hub_of(event.key)
             if hub is not None:
                 self.watchdog.hub_alive(hub, event.alive)
+                self.recorder.liveliness(hub, event.alive)
                 self.core.events.log.append(HubAlive(hub) if event.alive else HubGone(hub))
                 self._dirty.set()
 
@@ -261,9 +278,11 @@ class ControllerService:
 
     def _tick(self) -> None:
         core = self.core
+        self.clock.advance()
         unhealthy = self.watchdog.unhealthy()
         core.set_disabled(frozenset(unhealthy) | self.command_hold.held)
         result = core.tick()
+        self.recorder.ticked(unhealthy)
         now = time.monotonic()
         for name in result.started:
             self.op_since[name] = now
@@ -306,6 +325,8 @@ class ControllerService:
             self.command_seq[resource] += 1
         self._sent[resource] = current
         seq = self.command_seq[resource]
+        if previous != current:
+            self.recorder.command(resource, seq)
         message = codec.command(values, seq=seq, controller=self.controller_id)
         self.bus.publish(self.keys.cmd(resource), codec.encode_command(message))
         self.watchdog.command_sent(resource, seq)
@@ -324,6 +345,7 @@ class ControllerService:
         request = self.core.plan_request()
         if request is None:
             return
+        self.recorder.plan_request(request)
         first_answered = asyncio.Event()
 
         async def solve() -> None:
@@ -333,9 +355,9 @@ class ControllerService:
                         if answer.note is not None:
                             self.core.events.log.append(answer.note)
                         if not first_answered.is_set():
-                            self._adopt(request, answer.result)
+                            self._adopt(request, answer.result, answer.note)
                             first_answered.set()
-                        elif isinstance(answer.result, Plan) and self.core.improve(request, answer.result):
+                        elif isinstance(answer.result, Plan) and self._improve(request, answer.result):
                             log.info("shorter plan taken: %d steps (%s)", len(answer.result.steps),
                                      answer.result.stats.method)
                             self._status_due = True
@@ -362,9 +384,14 @@ class ControllerService:
         task.add_done_callback(self._solving.discard)
         self._planning = asyncio.create_task(first(), name="plan")
 
-    def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> None:
+    def _improve(self, request: PlanRequest, better: Plan) -> bool:
+        taken = self.core.improve(request, better)
+        self.recorder.plan(request, better, taken=taken, improvement=True)
+        return taken
+
+    def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None) -> None:
         said = len(self.core.events.log)
-        self.core.adopt(request, result)
+        self.recorder.plan(request, result, taken=self.core.adopt(request, result), note=note)
         for event in self.core.events.log[said:]:
             if isinstance(event, NoPlanFound):  # once per goal and reason, not at every retry
                 log.warning("%s", event.text)

@@ -130,7 +130,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                 return _fail(f"--model {args.model}: `up` runs the model {config} names ({named}); give the model "
                              f"in that file's [station] model, or use --in-process")
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
-                          time_limit=args.time_limit, resume=args.resume, hold=args.hold))
+                          time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record))
     from controller.control import VIRTUAL_BUDGET
 
     from .local.inprocess import run_in_process
@@ -139,8 +139,15 @@ def cmd_up(args: argparse.Namespace) -> int:
     print(f"statehub: running station {model.name} in one process, emulated devices "
           f"(speed x{args.speed}, seed {args.seed})", flush=True)
     budget = replace(VIRTUAL_BUDGET, first_expansions=args.plan_expansions, improve_expansions=args.improve_expansions)
+    recording = None
+    if not args.no_record:
+        from .local.recordings import in_process_recording
+
+        config = args.config or (DEFAULT_CONFIG if args.model is None and Path(DEFAULT_CONFIG).is_file() else None)
+        reference = args.model or (load_config(config).station.model if config else DEFAULT_MODEL)
+        recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget)
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None, realtime=args.realtime,
-                             report=lambda line: print(line, flush=True), budget=budget)
+                             report=lambda line: print(line, flush=True), budget=budget, recording=recording)
     print()
     print(f"{'finished' if summary.finished else 'NOT finished'}: {summary.operations_finished}/"
           f"{summary.operations_total} operations, {summary.abilities} abilities started, {summary.plans} plans, "
@@ -149,6 +156,8 @@ def cmd_up(args: argparse.Namespace) -> int:
           f"planning {summary.planning_seconds:.2f} s")
     if not summary.finished:
         print(f"reason: {summary.reason}")
+    if recording is not None:
+        print(f"recording: {recording.path} (hubctl replay {recording.path})")
     return 0 if summary.finished else 1
 
 
@@ -187,6 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--resume", action="store_true", help="keep the controller's persisted state of the last run")
     up.add_argument("--hold", action="store_true",
                     help="start no operation: the operator starts them from `hubctl console`")
+    up.add_argument("--no-record", action="store_true",
+                    help="do not record the run (default: into [controller.recording] dir, see `hubctl replay`)")
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")

@@ -17,11 +17,12 @@ What each kind records (key: data):
 
 * `state` (resource: StateRecord): the measured values that changed, the hub's status, the mirrored
   command seq. A hub publishes at 50 Hz; only what the controller took that differs is recorded.
-* `command` (resource: CommandRecord): a changed command as sent, with its seq.
+* `command` (resource: CommandRecord): a command sent with new values (the first one too), with its seq.
 * `liveliness` (hub: LivelinessRecord): its token appeared or vanished.
 * `watchdog` (resource: WatchdogRecord): the verdict turned unhealthy (with the reason) or recovered.
 * `tick` ("": TickRecord): the engine ticked (replay ticks at the same points).
-* `restore` ("persisted" | "mirrors": RestoreRecord): values loaded at start, before the first tick.
+* `restore` ("load": RestoreRecord): values the controller loaded: persisted ones at start, a hub's mirror.
+* `hold` ("": HoldRecord): the resources held (their command state unknown until their mirror comes).
 * `plan_request` (plan id: PlanRequestRecord): a plan asked for: goals, cause, start state's hash.
 * `plan` (plan id: PlanRecord): an answer to that request: steps or why none, member, time, expansions,
   and whether the controller took it.
@@ -68,6 +69,7 @@ class RecordKind(enum.StrEnum):
     WATCHDOG = "watchdog"
     TICK = "tick"
     RESTORE = "restore"
+    HOLD = "hold"
     PLAN_REQUEST = "plan_request"
     PLAN = "plan"
     OPERATION = "operation"
@@ -103,6 +105,7 @@ class RunMeta(msgspec.Struct, kw_only=True):
     replans: int = 0
     faults: int = 0
     duration: float = 0.0  # on the controller's clock (virtual in-process)
+    dropped: int = 0  # records not written: the disk did not keep up (a replay of such a run is refused)
     note: str = ""  # why it ended, when not finished
 
 
@@ -133,6 +136,11 @@ class TickRecord(msgspec.Struct, kw_only=True):
 
 class RestoreRecord(msgspec.Struct, kw_only=True):
     values: dict[str, Value]
+
+
+class HoldRecord(msgspec.Struct, kw_only=True):
+    resources: list[str]  # held: sent no command, disabled
+    paths: list[str]  # their command variables, unknown to the core
 
 
 class PlanRequestRecord(msgspec.Struct, kw_only=True):
@@ -186,6 +194,7 @@ DATA_TYPES: dict[RecordKind, type] = {
     RecordKind.WATCHDOG: WatchdogRecord,
     RecordKind.TICK: TickRecord,
     RecordKind.RESTORE: RestoreRecord,
+    RecordKind.HOLD: HoldRecord,
     RecordKind.PLAN_REQUEST: PlanRequestRecord,
     RecordKind.PLAN: PlanRecord,
     RecordKind.OPERATION: OperationRecord,
@@ -194,7 +203,7 @@ DATA_TYPES: dict[RecordKind, type] = {
 }
 
 RecordData = (StateRecord | CommandRecord | LivelinessRecord | WatchdogRecord | TickRecord | RestoreRecord
-              | PlanRequestRecord | PlanRecord | OperationRecord | RequestRecord | ConsoleEvent)
+              | HoldRecord | PlanRequestRecord | PlanRecord | OperationRecord | RequestRecord | ConsoleEvent)
 
 
 def station_model_hash(model: Model) -> str:

@@ -14,6 +14,7 @@ from common.ctl import NoPlanFound, PlanFound
 from common.model import Model, OperationState
 from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget
+from controller.recorder import RunRecorder, Sink
 from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
 
@@ -48,7 +49,9 @@ def run_in_process(
     time_limit: float = 3600.0,
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
+    recording: Sink | None = None,
 ) -> RunSummary:
+    """`recording`: where the run is recorded (controller/recorder.py), closed when it ends."""
     say = report or (lambda _line: None)
     # The model tables are built before the first request, as the controller's planner process does.
     stack = build_controller_stack(model, prepare=True)
@@ -56,6 +59,8 @@ def run_in_process(
     now = 0.0
     core = stack.control_core(lambda: now, budget=budget)
     core.request(*(op.name for op in model.operations))
+    recorder = RunRecorder(core, lambda: now, recording)
+    recorder.requested(core.requested)
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure)
     deliberate = {t.name for t in compiled.deliberate}
     total = len(model.operations)
@@ -66,6 +71,8 @@ def run_in_process(
     while True:
         progress_before, state_before = core.progress, core.state
         result = core.tick()
+        recorder.ticked()
+        recorder.send_changed()
         for name in result.started:
             say(f"{now:7.1f}s  start  {name}")
         for name in result.fired:
@@ -84,18 +91,19 @@ def run_in_process(
         quiet_ticks = 0
         request = core.plan_request()
         if request is not None:
+            recorder.plan_request(request)
             began = time.perf_counter()
             answer = core.solve(request)
             planning += time.perf_counter() - began
             said = len(core.events.log)
-            core.adopt(request, answer)
+            recorder.plan(request, answer, taken=core.adopt(request, answer))
             for event in core.events.log[said:]:
                 if isinstance(event, NoPlanFound | PlanFound):  # once per goal and reason, not per retry
                     say(f"{now:7.1f}s  {event.text}")
             continue
         changes = emulator.step(compiled.unpack(core.state), now)
         if changes:
-            core.ingest(changes)
+            recorder.ingested(core.ingest(changes))
             continue
         due = emulator.next_due()
         retry = core.next_retry()
@@ -114,6 +122,8 @@ def run_in_process(
             reason = f"time limit of {time_limit} emulated seconds reached"
             break
     events = core.events
+    recorder.finish("finished" if core.all_finished() else "stuck" if reason.startswith("stuck") else "stopped",
+                    reason)
     return RunSummary(
         finished=core.all_finished(),
         operations_finished=sum(1 for op in model.operations if core.op_state(op.name) is OperationState.FINISHED),

@@ -27,6 +27,7 @@ from common.station_net import security_banner
 from common.zenohbus import ZenohBus
 
 from .localcerts import local_certs, watcher_zenoh_config
+from .recordings import recording_since
 
 RUN_DIR = Path("var/up")
 STOP_GRACE_S = 5.0
@@ -79,6 +80,7 @@ class Options:
     time_limit: float = 900.0
     resume: bool = False
     hold: bool = False  # the controller starts no operation: the operator starts them from `hubctl console`
+    record: bool = True  # the controller records the run (common/recording)
     run_dir: Path = RUN_DIR
 
 
@@ -91,6 +93,7 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
         controller.append("--fresh")
     if options.hold:
         controller.append("--hold")
+    controller += ["--run-mode", "up", "--run-seed", str(options.seed)] if options.record else ["--no-record"]
     children = [Child("controller", controller + secured, run_dir / "controller.log")]
     for hub in config.hubs.values():
         argv = [sys.executable, "-m", "hubs", hub.name, "--config", options.config, "--loopback-port", str(port),
@@ -187,7 +190,7 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
     say(f"  logs in {options.run_dir}/")
     console = f" --as {operator_identity(config).name} --certs {certs}" if certs else ""
     say(f"  console: hubctl console --config {options.config} --connect {scheme}/127.0.0.1:{port}{console}")
-    began = time.monotonic()
+    began, began_wall = time.monotonic(), time.time()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -256,6 +259,9 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                     say(f"  {h.resource} ({h.hub}): {h.reason}")
     else:
         say(f"no status from the controller in {elapsed:.1f} s; see {options.run_dir}/controller.log")
+    recording = recording_since(options.config, began_wall - 1.0) if options.record else None
+    if recording is not None:
+        say(f"recording: {recording} (hubctl replay {recording})")
     return result
 
 

@@ -1,0 +1,36 @@
+"""Where `hubctl up` records its run, and finding that recording again when the run ends."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from common.config import RecordingConfig, load_config
+from common.model import Model
+from common.recording.reader import list_runs
+from common.recording.schema import RunMeta
+from common.recording.writer import RecordingWriter
+from controller.planner import Budget
+from controller.recorder import open_recording
+
+
+def recording_settings(config_path: str | Path | None) -> RecordingConfig:
+    """`[controller.recording]` of the station's hubs.toml, or the defaults without one."""
+    if config_path is None or not Path(config_path).is_file():
+        return RecordingConfig()
+    return load_config(config_path).controller.recording
+
+
+def in_process_recording(model: Model, model_reference: str, config_path: str | None, *, seed: int,
+                         budget: Budget) -> RecordingWriter:
+    """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
+    counts = {"first_expansions": budget.first_expansions, "improve_expansions": budget.improve_expansions,
+              "symbolic_layers": budget.symbolic_layers}
+    meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode="in-process", seed=seed,
+                   budget=counts)
+    return open_recording(recording_settings(config_path), meta, model)
+
+
+def recording_since(config_path: str, started: float) -> Path | None:
+    """The newest recording in the station's recording dir begun at or after `started` (wall clock)."""
+    runs = [r for r in list_runs(recording_settings(config_path).dir) if not r.problem and r.meta.started >= started]
+    return runs[-1].path if runs else None
