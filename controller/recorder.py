@@ -251,6 +251,7 @@ def plan_record(request: PlanRequest, result: Plan | NoPlan | None, *, taken: bo
                         taken=taken, goals=list(request.goals), reason=cause.reason.value, detail=cause.detail)
     if isinstance(result, Plan):
         stats = result.stats
+        record.goals = list(result.goals)  # one of the request's, when planned alone
         record.steps = [StepRecord(s.transition, s.outcome) for s in result.steps]
         record.ms, record.member = stats.seconds * 1000, stats.method
         record.expansions, record.minimal = stats.expanded, stats.minimal

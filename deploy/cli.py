@@ -261,6 +261,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .scaffold.cli import register_scaffold_commands
 
     register_scaffold_commands(sub)
+
+    from .replay.cli import register_replay_command
+
+    register_replay_command(sub)
     return parser
 
 

@@ -104,7 +104,7 @@ class RecordingWriter:
             if self.dropped:
                 self.meta.dropped = self.dropped
             with self._connection:
-                self._write_meta(self._connection, self.meta)
+                self.write_meta(self._connection, self.meta)
             self._connection.execute("PRAGMA journal_mode=DELETE")  # one self-contained file once it ends
         except (sqlite3.Error, OSError) as exc:  # a full disk must not take the controller down
             log.error("recording %s stopped: %s", self.current, exc)
@@ -133,7 +133,7 @@ class RecordingWriter:
         with connection:
             connection.executemany("INSERT INTO events (t, kind, key, data) VALUES (?, ?, ?, ?)", rows)
             if meta_changed:
-                self._write_meta(connection, self.meta)
+                self.write_meta(connection, self.meta)
         if self._size() > self.max_bytes:
             self._rotate()
 
@@ -155,11 +155,11 @@ class RecordingWriter:
         connection.executescript(DDL)
         connection.isolation_level = ""  # `with connection` opens and commits a transaction
         with connection:
-            self._write_meta(connection, self.meta)
+            self.write_meta(connection, self.meta)
         return connection
 
     @staticmethod
-    def _write_meta(connection: sqlite3.Connection, meta: RunMeta) -> None:
+    def write_meta(connection: sqlite3.Connection, meta: RunMeta) -> None:
         connection.executemany("INSERT OR REPLACE INTO run_meta (key, value) VALUES (?, ?)",
                                [(k, json.dumps(v)) for k, v in msgspec.to_builtins(meta).items()])
 

@@ -1,0 +1,43 @@
+"""`hubctl replay RUN [--save-test tests/replays/NAME]`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from common.recording.reader import RecordingError, open_run
+
+from .replay import Replayer, ReplayError
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    try:
+        with open_run(args.run) as run:
+            result = Replayer(run).replay()
+            if result.same and args.save_test:
+                from .savetest import save_test
+
+                saved = save_test(run, args.save_test)
+    except (RecordingError, ReplayError) as exc:
+        print(f"hubctl replay: {exc}", file=sys.stderr)
+        return 2
+    counts = ", ".join(f"{n} {kind}" for kind, n in sorted(result.decisions.items())) or "none"
+    if result.divergence is not None:
+        print(f"replay of {args.run}: {result.records} records; the same decisions until here ({counts})")
+        print(result.divergence)
+        if args.save_test:
+            print("not saved as a test: a saved run must replay to the same decisions")
+        return 1
+    print(f"replay of {args.run}: {result.records} records, the same decisions ({counts})")
+    if args.save_test:
+        print(f"saved as a test: {saved} (tests/test_replays.py replays it)")
+    return 0
+
+
+def register_replay_command(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    replay = sub.add_parser("replay", help="replay a recorded run on a fresh controller and check it decides the "
+                                           "same (plans, commands, operation transitions)")
+    replay.add_argument("run", metavar="RUN", help="a recording (var/runs/*.sqlite by default)")
+    replay.add_argument("--save-test", metavar="PATH",
+                        help="store the trimmed run (PATH.sqlite, e.g. tests/replays/NAME) for the suite to replay")
+    replay.set_defaults(func=cmd_replay)

@@ -1,0 +1,259 @@
+"""Replay a recorded run (common/recording) on a fresh controller core in virtual time and compare decisions.
+
+The inputs, in the recorded order and at the recorded times (the core's clock is set to each record's
+`t`): the values loaded at start, the measured values the controller took, the watchdog's verdicts
+(which resources were disabled at each tick), the ticks, the console requests, and when plans were asked
+for and answered. The decisions compared one to one: each command sent (values and seq), each operation
+transition, each plan request (goals, cause, disabled resources, the hash of the state planned from),
+each plan answer and whether it was taken, and the core's event log (replans, plans kept or shortened,
+goals without a plan, answered requests). The first record that differs is the divergence.
+
+Plans: an `up --in-process` run plans by counts only (its budget is in the recording), so the replay
+plans again with that budget and the plans themselves are compared. A live controller's planner races
+against the wall clock (the first answer within seconds, a shortest plan if A* is warm within 150 ms,
+improvements streamed while the station goes on): the same search bounded by the recorded expansions
+would still differ in which answer arrived when. So a live run's plans are inputs, like the measured
+states, rebuilt from their recorded steps on the replayed start state; what the controller made of
+them (adopted or dropped, shorter plan taken or not, every command and transition that followed) is
+checked. The watchdog's verdicts are inputs too: they follow from when each 50 Hz state arrived, and
+the recording keeps what changed, not every arrival.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+
+from common.model import Model
+from common.recording.reader import Record, Run
+from common.recording.schema import (
+    CommandRecord,
+    OperationRecord,
+    PlanRecord,
+    PlanRequestRecord,
+    RecordKind,
+    RequestRecord,
+    RestoreRecord,
+    StateRecord,
+    WatchdogRecord,
+    station_model_hash,
+)
+from common.stations import load_model
+from controller.control import ControlCore, PlanRequest
+from controller.planner import Budget, NoPlan, Plan, PlanStats
+from controller.planner.validate import plan_from_moves
+from controller.recorder import RunRecorder
+from controller.requests import Requests
+from controller.stack import build_controller_stack
+
+DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
+                       RecordKind.EVENT})
+# The event log's entries the core decides; the others are the service's notes (hub alive, mirrors missing).
+CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request"})
+
+
+class ReplayError(ValueError):
+    """A recording that cannot be replayed (names the file and why)."""
+
+
+@dataclass(frozen=True)
+class Divergence:
+    t: float
+    kind: str
+    key: str
+    recorded: str
+    replayed: str
+
+    def __str__(self) -> str:
+        return (f"first diverging event at t={self.t:.3f} s: {self.kind} {self.key}\n"
+                f"  recorded: {self.recorded}\n  replayed: {self.replayed}")
+
+
+@dataclass
+class ReplayResult:
+    records: int = 0
+    decisions: dict[str, int] = field(default_factory=dict)  # compared, by kind
+    divergence: Divergence | None = None
+
+    @property
+    def same(self) -> bool:
+        return self.divergence is None
+
+
+class ListSink:
+    def __init__(self) -> None:
+        self.records: list[Record] = []
+
+    def put(self, t: float, kind: RecordKind, key: str, data: Any) -> None:
+        if kind in DECISIONS:
+            self.records.append(Record(t, kind, key, data))
+
+    def update_meta(self, **fields: Any) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class VirtualClock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def is_decision(record: Record) -> bool:
+    return record.kind in DECISIONS and (record.kind is not RecordKind.EVENT or record.key in CORE_EVENTS)
+
+
+def compared(record: Record) -> tuple[Any, ...]:
+    """What must be the same in a recorded and a replayed decision."""
+    data = record.data
+    if isinstance(data, PlanRecord):  # not the planner's wall time, member or counts
+        data = (data.answer, data.taken, data.goals, data.found, data.steps, data.no_plan, data.unreachable,
+                data.proven, data.reason, data.detail)
+    return record.kind, record.key, msgspec.to_builtins(data)
+
+
+class Replayer:
+    def __init__(self, run: Run, model: Model | None = None) -> None:
+        meta = run.meta
+        if meta.dropped:
+            raise ReplayError(f"{run.parts[0]}: {meta.dropped} records were dropped while recording (the disk "
+                              f"did not keep up): the run cannot be replayed")
+        if run.first_part != 1:
+            raise ReplayError(f"{run.parts[0]}: the run's first part file was deleted ([controller.recording] "
+                              f"keep): a replay needs the run from its start")
+        self.model = model or load_model(meta.model)
+        if station_model_hash(self.model) != meta.model_hash:
+            raise ReplayError(f"{run.parts[0]}: recorded with another version of model {meta.model} "
+                              f"(hash {meta.model_hash}, now {station_model_hash(self.model)})")
+        self.run = run
+        self.replans = meta.mode == "in-process" and meta.budget is not None  # plans by counts: plan again
+        budget = Budget(**meta.budget) if meta.budget else None
+        stack = build_controller_stack(self.model, prepare=self.replans)
+        self.compiled = stack.compiled
+        self.clock = VirtualClock()
+        self.core: ControlCore = stack.control_core(self.clock, budget=budget)
+        self.core.request(*meta.requested)
+        self.sink = ListSink()
+        self.recorder = RunRecorder(self.core, self.clock, self.sink)
+        self.requests = Requests(self.core, answered=self.recorder.request)
+        self.unhealthy: dict[str, str] = {}
+        self.asked: dict[int, PlanRequest] = {}
+        self._apply: dict[RecordKind, Callable[[Record], None]] = {
+            RecordKind.STATE: self._state, RecordKind.WATCHDOG: self._watchdog, RecordKind.TICK: self._tick,
+            RecordKind.RESTORE: self._restore, RecordKind.REQUEST: self._request,
+            RecordKind.PLAN_REQUEST: self._plan_request, RecordKind.PLAN: self._plan,
+        }
+
+    def replay(self) -> ReplayResult:
+        result = ReplayResult()
+        recorded: list[Record] = []
+        for record in self.run.events():
+            result.records += 1
+            if is_decision(record):
+                recorded.append(record)
+            apply = self._apply.get(record.kind)
+            if apply is None:
+                continue
+            self.clock.now = record.t
+            try:
+                apply(record)
+            except Exception as exc:  # a recorded input the replayed core cannot take: the runs differ here
+                result.divergence = Divergence(record.t, record.kind.value, record.key, _show(record.data),
+                                               f"cannot be applied: {type(exc).__name__}: {exc}")
+                return result
+        replayed = [r for r in self.sink.records if is_decision(r)]
+        for mine, theirs in zip(recorded, replayed, strict=False):
+            if compared(mine) != compared(theirs):
+                result.divergence = Divergence(mine.t, mine.kind.value, mine.key, _show(mine.data), _show(theirs.data)
+                                               + ("" if theirs.kind is mine.kind and theirs.key == mine.key
+                                                  else f" ({theirs.kind.value} {theirs.key} at t={theirs.t:.3f} s)"))
+                return result
+            result.decisions[mine.kind.value] = result.decisions.get(mine.kind.value, 0) + 1
+        if len(recorded) != len(replayed):
+            extra = (recorded if len(recorded) > len(replayed) else replayed)[min(len(recorded), len(replayed))]
+            mine = _show(extra.data) if len(recorded) > len(replayed) else "nothing"
+            theirs = "nothing" if len(recorded) > len(replayed) else _show(extra.data)
+            result.divergence = Divergence(extra.t, extra.kind.value, extra.key, mine, theirs)
+        return result
+
+    # --- the inputs -----------------------------------------------------------------------
+    def _state(self, record: Record) -> None:
+        data: StateRecord = record.data  # type: ignore[assignment]
+        if data.values:
+            self.core.ingest(data.values)
+
+    def _watchdog(self, record: Record) -> None:
+        data: WatchdogRecord = record.data  # type: ignore[assignment]
+        if data.verdict == "unhealthy":
+            self.unhealthy[record.key] = data.detail
+        else:
+            self.unhealthy.pop(record.key, None)
+
+    def _tick(self, _record: Record) -> None:
+        core = self.core
+        core.set_disabled(frozenset(self.unhealthy))
+        before = core.state
+        core.tick()
+        self.recorder.ticked(self.unhealthy)
+        self.recorder.commands_changed(before, core.state)
+
+    def _restore(self, record: Record) -> None:
+        data: RestoreRecord = record.data  # type: ignore[assignment]
+        self.core.load(data.values)
+
+    def _request(self, record: Record) -> None:
+        data: RequestRecord = record.data  # type: ignore[assignment]
+        self.requests.apply(data.request)
+
+    def _plan_request(self, _record: Record) -> None:
+        request = self.core.plan_request()
+        if request is not None:
+            self.recorder.plan_request(request)
+            self.asked[request.generation] = request
+
+    def _plan(self, record: Record) -> None:
+        data: PlanRecord = record.data  # type: ignore[assignment]
+        request = self.asked.get(data.generation)
+        if request is None:
+            return  # not asked for in the replay: the plan requests already differ
+        improvement = data.answer == "improvement"
+        replan = self.replans and not improvement
+        answer = self.core.solve(request) if replan else self._recorded_answer(request, data)
+        if improvement:
+            assert isinstance(answer, Plan)
+            self.recorder.plan(request, answer, taken=self.core.improve(request, answer), improvement=True)
+        else:
+            self.recorder.plan(request, answer, taken=self.core.adopt(request, answer))
+
+    def _recorded_answer(self, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
+        stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
+        if data.found:
+            moves = [(self.compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
+            return plan_from_moves(self.compiled, request.start, moves, tuple(data.goals), stats)
+        if not request.goals:
+            return None
+        return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
+
+
+def _show(data: Any) -> str:
+    if isinstance(data, CommandRecord):
+        return f"{data.values} seq {data.seq}"
+    if isinstance(data, OperationRecord):
+        return f"{data.before} -> {data.after}"
+    if isinstance(data, PlanRequestRecord):
+        cause = data.reason + (f": {data.detail}" if data.detail else "")
+        return (f"goals {', '.join(data.goals) or '(none)'}; cause {cause}"
+                f"; disabled {', '.join(data.disabled) or 'none'}; start state {data.start}")
+    if isinstance(data, PlanRecord):
+        what = f"{len(data.steps)} steps: " + ", ".join(s.transition for s in data.steps[:6]) + \
+            (" ..." if len(data.steps) > 6 else "") if data.found else f"no plan: {data.no_plan}"
+        return f"{data.answer} answer, {'taken' if data.taken else 'not taken'}; {what}"
+    text = getattr(data, "text", None)
+    return text if isinstance(text, str) else repr(data)
