@@ -40,7 +40,7 @@ from common.recording.schema import (
     state_hash,
     station_model_hash,
 )
-from common.recording.writer import RecordingWriter
+from common.recording.writer import RecordingWriter, recording_dir
 
 from .control import ControlCore, PlanRequest
 from .planner import NoPlan, Plan
@@ -269,4 +269,5 @@ def open_recording(settings: RecordingConfig, meta: RunMeta, model: Model) -> Re
     meta.model_hash = station_model_hash(model)
     meta.operations_total = len(model.operations)
     meta.started = meta.started or time.time()
-    return RecordingWriter(settings.dir, meta, max_bytes=int(settings.max_mb * 1024 * 1024), keep=settings.keep)
+    return RecordingWriter(recording_dir(settings.dir), meta, max_bytes=int(settings.max_mb * 1024 * 1024),
+                           keep=settings.keep)

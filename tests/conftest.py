@@ -17,6 +17,17 @@ import pytest
 from hub_process import HubProcess
 
 
+@pytest.fixture(scope="session", autouse=True)
+def recordings_in_a_temporary_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Runs record by default (common/recording): the suite's go to a temporary directory, not ./var/runs
+    (controllers started as processes inherit the variable)."""
+    from common.recording.writer import RECORDING_DIR_ENV
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(RECORDING_DIR_ENV, str(tmp_path_factory.mktemp("runs")))
+        yield
+
+
 @pytest.fixture
 def hub_process(tmp_path: Path) -> Iterator[Callable[..., HubProcess]]:
     """Start hub processes: `hub_process(config, hub, port, *options)`; each is stopped after the test

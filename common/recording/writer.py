@@ -31,9 +31,15 @@ from .schema import DDL, SUFFIX, RecordKind, RunMeta
 
 log = logging.getLogger("statehub.recording")
 
+RECORDING_DIR_ENV = "STATEHUB_RECORDING_DIR"  # overrides [controller.recording] dir (the test suite sets it)
 FLUSH_S = 0.25  # the writer wakes this often: a batch per wake-up
 QUEUE_LIMIT = 200_000  # records waiting for the disk before new ones are dropped
 _META = object()  # queue marker: a RunMeta update
+
+
+def recording_dir(configured: str) -> Path:
+    """Where runs are recorded: `configured` ([controller.recording] dir) unless $STATEHUB_RECORDING_DIR says."""
+    return Path(os.environ.get(RECORDING_DIR_ENV) or configured)
 
 
 def run_file_name(meta: RunMeta, part: int = 1) -> str:

@@ -8,7 +8,7 @@ from common.config import RecordingConfig, load_config
 from common.model import Model
 from common.recording.reader import list_runs
 from common.recording.schema import RunMeta
-from common.recording.writer import RecordingWriter
+from common.recording.writer import RecordingWriter, recording_dir
 from controller.planner import Budget
 from controller.recorder import open_recording
 
@@ -32,5 +32,6 @@ def in_process_recording(model: Model, model_reference: str, config_path: str | 
 
 def recording_since(config_path: str, started: float) -> Path | None:
     """The newest recording in the station's recording dir begun at or after `started` (wall clock)."""
-    runs = [r for r in list_runs(recording_settings(config_path).dir) if not r.problem and r.meta.started >= started]
+    directory = recording_dir(recording_settings(config_path).dir)
+    runs = [r for r in list_runs(directory) if not r.problem and r.meta.started >= started]
     return runs[-1].path if runs else None
