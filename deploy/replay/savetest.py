@@ -48,7 +48,8 @@ def save_test(run: Run, target: str | Path) -> Path:
         RecordingWriter.write_meta(connection, meta)
         connection.executemany("INSERT INTO events (t, kind, key, data) VALUES (?, ?, ?, ?)", rows)
         connection.execute("COMMIT")
-        connection.execute("VACUUM")
+        # A replay reads it once, in order: the indexes would double its size for nothing.
+        connection.executescript("DROP INDEX events_t; DROP INDEX events_kind_key_t; VACUUM")
     finally:
         connection.close()
     return path

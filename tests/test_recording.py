@@ -1,0 +1,126 @@
+"""Run recordings (common/recording): written off the caller's thread, bounded, read back in order."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from common.config import ConfigError, parse_config
+from common.ctl import HubGone
+from common.recording.reader import RecordingError, list_runs, open_run
+from common.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
+from common.recording.writer import RecordingWriter
+
+MB = 1024 * 1024
+
+
+def writer(directory: Path, **options: object) -> RecordingWriter:
+    settings: dict[str, object] = {"max_bytes": 50 * MB, "keep": 10, "flush_s": 0.01} | options
+    return RecordingWriter(directory, RunMeta(station="s", mode="in-process", started=1000.0), **settings)  # type: ignore[arg-type]
+
+
+def test_records_are_read_back_in_order_with_their_types_and_filters(tmp_path: Path) -> None:
+    w = writer(tmp_path)
+    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": True}, status="ok", mirror_seq=3))
+    w.put(0.5, RecordKind.TICK, "", TickRecord())
+    w.put(1.0, RecordKind.EVENT, "hub_gone", HubGone("pi-tool"))
+    w.put(2.0, RecordKind.OPERATION, "Tighten", OperationRecord(before="initial", after="executing"))
+    w.update_meta(outcome="finished", operations_done=1)
+    w.close()
+
+    with open_run(w.path) as run:
+        assert run.meta.station == "s" and run.meta.outcome == "finished" and run.meta.operations_done == 1
+        assert [(r.t, r.kind, r.key) for r in run.events()] == [
+            (0.5, RecordKind.STATE, "nr"), (0.5, RecordKind.TICK, ""), (1.0, RecordKind.EVENT, "hub_gone"),
+            (2.0, RecordKind.OPERATION, "Tighten")]
+        (state,) = run.events(kinds=["state"])
+        assert state.data == StateRecord(values={"nr.run_m": True}, status="ok", mirror_seq=3)
+        assert [r.data for r in run.events(kinds={RecordKind.EVENT}, since=0.9, until=1.1)] == [HubGone("pi-tool")]
+        assert [r.kind for r in run.events(since=0.6, key="Tighten")] == [RecordKind.OPERATION]
+        assert run.end_t == 2.0
+
+
+def test_a_run_beyond_max_bytes_goes_on_in_part_files_read_as_one_run(tmp_path: Path) -> None:
+    w = writer(tmp_path, max_bytes=64 * 1024, flush_s=60.0)
+    for batch in range(6):  # each batch is one transaction; the size is checked after each
+        for i in range(400):
+            w.put(batch * 400 + i, RecordKind.STATE, f"r{i % 7}", StateRecord(values={"r.x": "x" * 40}))
+        w._write_batch(w._take())  # the writer thread is asleep (flush_s): write the batch now
+    w.close()
+
+    parts = sorted(tmp_path.glob("*.sqlite"))
+    assert len(parts) > 2
+    assert all(p.stat().st_size < 2 * 64 * 1024 for p in parts)
+    (info,) = list_runs(tmp_path)
+    assert info.parts == len(parts) and info.path == w.path
+    with open_run(parts[-1]) as run:  # any part opens the whole run
+        assert [r.t for r in run.events()] == list(range(2400))
+
+
+def test_the_directory_keeps_at_most_keep_files_deleting_the_oldest(tmp_path: Path) -> None:
+    paths = []
+    for started in range(5):
+        w = RecordingWriter(tmp_path, RunMeta(station="s", started=1000.0 + started), max_bytes=MB, keep=3)
+        w.put(0.0, RecordKind.TICK, "", TickRecord())
+        w.close()
+        paths.append(w.path)
+    assert sorted(tmp_path.glob("*.sqlite")) == sorted(paths[-3:])
+    assert [info.path for info in list_runs(tmp_path)] == paths[-3:]
+
+
+def test_a_stuck_disk_never_blocks_put_and_what_overflows_is_counted(tmp_path: Path) -> None:
+    w = writer(tmp_path, queue_limit=100)
+    disk_free = threading.Event()
+    stuck = threading.Event()
+    write = w._write_batch
+
+    def slow_disk(batch: list) -> None:  # type: ignore[type-arg]
+        if batch:
+            stuck.set()
+            disk_free.wait()
+        write(batch)
+
+    w._write_batch = slow_disk  # type: ignore[method-assign]
+    w.put(0.0, RecordKind.TICK, "", TickRecord())
+    assert stuck.wait(10), "the writer thread took the first batch"
+    for i in range(1000):  # the writer is stuck: every put returns at once, the queue stays bounded
+        w.put(float(i), RecordKind.TICK, "", TickRecord())
+    assert len(w._queue) == 100 and w.dropped == 900
+    disk_free.set()
+    w.close()
+    with open_run(w.path) as run:
+        assert run.meta.dropped == 900
+        assert sum(1 for _ in run.events()) == 101
+
+
+def test_what_is_not_a_recording_is_refused_with_its_path(tmp_path: Path) -> None:
+    bad = tmp_path / "notes.sqlite"
+    bad.write_text("not sqlite")
+    with pytest.raises(RecordingError, match=r"notes\.sqlite"):
+        open_run(bad)
+    (info,) = list_runs(tmp_path)
+    assert info.problem and info.path == bad
+
+
+CONFIG = """[station]
+name = "s"
+model = "m:build"
+[controller]
+host = "x"
+{recording}
+[hubs.h]
+host = "h"
+"""
+
+
+def test_recording_settings_in_hubs_toml_with_defaults_and_errors_by_key_and_line() -> None:
+    default = parse_config(CONFIG.format(recording="")).controller.recording
+    assert (default.dir, default.max_mb, default.keep) == ("var/runs", 200.0, 50)
+    chosen = parse_config(CONFIG.format(recording='[controller.recording]\ndir = "runs"\nmax_mb = 5\nkeep = 3'))
+    assert chosen.controller.recording.max_mb == 5 and chosen.controller.recording.keep == 3
+    with pytest.raises(ConfigError) as error:
+        parse_config(CONFIG.format(recording="[controller.recording]\nmax_mb = 0\nkeep = 0.5\nsize = 1"))
+    assert [(p.line, p.key) for p in error.value.problems] == [
+        (7, "controller.recording.max_mb"), (8, "controller.recording.keep"), (9, "controller.recording.size")]
