@@ -27,7 +27,7 @@ from typing import Any
 
 import msgspec
 
-from .schema import DDL, SUFFIX, RecordKind, RunMeta
+from .schema import DDL, KIND_KEY_INDEX, SUFFIX, RecordKind, RunMeta
 
 log = logging.getLogger("statehub.recording")
 
@@ -111,7 +111,7 @@ class RecordingWriter:
                 self.meta.dropped = self.dropped
             with self._connection:
                 self.write_meta(self._connection, self.meta)
-            self._connection.execute("PRAGMA journal_mode=DELETE")  # one self-contained file once it ends
+            self._complete(self._connection)  # one self-contained file once it ends
         except (sqlite3.Error, OSError) as exc:  # a full disk must not take the controller down
             log.error("recording %s stopped: %s", self.current, exc)
         finally:
@@ -147,7 +147,13 @@ class RecordingWriter:
         pages = self._connection.execute("PRAGMA page_count").fetchone()[0]
         return int(pages) * int(self._connection.execute("PRAGMA page_size").fetchone()[0])
 
+    @staticmethod
+    def _complete(connection: sqlite3.Connection) -> None:
+        connection.execute(KIND_KEY_INDEX)
+        connection.execute("PRAGMA journal_mode=DELETE")  # one self-contained file once it ends
+
     def _rotate(self) -> None:
+        self._complete(self._connection)
         self._connection.close()
         self.meta.part += 1
         self.current = self.directory / run_file_name(self.meta, self.meta.part)

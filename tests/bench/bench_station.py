@@ -18,6 +18,12 @@
     share of one core and its RSS, from /proc (targets < 3 %, < 60 MB).
 (d) the baseline: raw zenoh-python and our asyncio Bus, ping-pong between two processes
     (tests/bench/bench_bus.py).
+(e) what recording the run costs (common/recording): (b) at 500 resources with the controller
+    recording and with `--no-record`, alternately; its tick median and its ingest capacity, i.e. the
+    states it ingests per second of its CPU (one core's worth is what it could ingest at most).
+    Then the same in one process without Zenoh (bench_recording.py), steadier on a busy machine,
+    with values that never change and with values that change in every state (the worst case).
+    Target: recording costs < 5 % of the ingest capacity. `--recording-only` runs just this.
 
 The machine's load matters: run it on an otherwise idle machine. `--quick` (< 60 s) uses
 fewer round trips, shorter windows and N up to 1000.
@@ -48,6 +54,7 @@ from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, wri
 
 from common.keys import station_keys  # noqa: E402
 from common.process import free_port  # noqa: E402
+from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from common.zenoh_config import zenoh_config  # noqa: E402
 from common.zenohbus import ZenohBus  # noqa: E402
 
@@ -119,7 +126,8 @@ def rss_mb(pid: int) -> float:
     return 0.0
 
 
-async def capacity_step(directory: Path, resources: int, warmup: float, window: float) -> Step:
+async def capacity_step(directory: Path, resources: int, warmup: float, window: float, *,
+                        record: bool = True) -> Step:
     from common.ctl import StatusMessage
     from common.messages import MessageError, decode
 
@@ -128,11 +136,11 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
     config = write_station(directory, station, resources)
     port = free_port()
     keys = station_keys(station)
-    env = {**ENV, RESOURCES_ENV: str(resources)}
+    env = {**ENV, RESOURCES_ENV: str(resources), RECORDING_DIR_ENV: str(directory / "runs")}
     log = (directory / f"controller_{resources}.log").open("wb")
     controller = subprocess.Popen(
         [sys.executable, "-m", "controller", "--config", str(config), "--loopback-port", str(port),
-         "--db", str(directory / f"bench_{resources}.sqlite"), "--fresh"],
+         "--db", str(directory / f"bench_{resources}.sqlite"), "--fresh", *([] if record else ["--no-record"])],
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
     gens: list[subprocess.Popen[bytes]] = []
     try:
@@ -307,13 +315,63 @@ async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> 
     return HubFigures(rtts, cpu_share, rss, measured)
 
 
+# --- (e) recording on and off ----------------------------------------------------------------------------
+
+RECORDING_RESOURCES = 500
+RECORDING_COST_LIMIT = 0.05
+
+
+def recording_cost(directory: Path, rounds: int, warmup: float, window: float) -> None:
+    """(b) at 500 resources, recording off and on in turn (the machine's load drifts: pairs, not blocks)."""
+    steps: dict[bool, list[Step]] = {False: [], True: []}
+    for _ in range(rounds):
+        for record in (False, True):
+            step = asyncio.run(capacity_step(directory, RECORDING_RESOURCES, warmup, window, record=record))
+            steps[record].append(step)
+            print(f"    recording {'on ' if record else 'off'}: tick median {step.tick_median_ms:.2f} ms, ingested "
+                  f"{step.ingested:,.0f}/s, controller cpu {100 * step.controller_cpu:.0f} %"
+                  + (f" {step.problem}" if step.problem else ""), flush=True)
+
+    def capacity(step: Step) -> float:  # states ingested per CPU second of the controller
+        return step.ingested / step.controller_cpu if step.controller_cpu else 0.0
+
+    figures = {record: (statistics.median(s.tick_median_ms for s in done), statistics.median(map(capacity, done)))
+               for record, done in steps.items()}
+    (tick_off, capacity_off), (tick_on, capacity_on) = figures[False], figures[True]
+    cost = 1 - capacity_on / capacity_off if capacity_off else float("nan")
+    print()
+    print(f"(e) recording at {RECORDING_RESOURCES} resources x {HUB_RATE_HZ:.0f} Hz, median of {rounds} rounds:")
+    print(f"    {'':<14} {'tick median':>12} {'ingest capacity':>24}")
+    print(f"    {'recording off':<14} {tick_off:>9.2f} ms {capacity_off:>14,.0f} states/cpu-s")
+    print(f"    {'recording on':<14} {tick_on:>9.2f} ms {capacity_on:>14,.0f} states/cpu-s")
+    print(f"    on/off: tick x{tick_on / tick_off if tick_off else float('nan'):.3f}, ingest capacity "
+          f"x{capacity_on / capacity_off if capacity_off else float('nan'):.3f}: recording costs {100 * cost:.1f} % "
+          f"(target < {100 * RECORDING_COST_LIMIT:.0f} %) {'ok' if cost < RECORDING_COST_LIMIT else 'MISSED'}")
+    sizes = [p.stat().st_size for p in (directory / "runs").glob("*.sqlite")]
+    if sizes:
+        per_s = statistics.median(sizes) / (window + warmup)
+        print(f"    recording size: about {per_s / 1024:,.0f} kB per second of run (states are recorded when they "
+              f"change; the load generators' values hardly do)")
+    print("(e) the same in one process, states handed to the controller's ingestion (bench_recording.py):", flush=True)
+    import bench_recording
+
+    bench_recording.report(RECORDING_RESOURCES, window, rounds, RECORDING_COST_LIMIT)
+
+
 # --- the report ----------------------------------------------------------------------------------------
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a smoke run in under a minute")
     parser.add_argument("--max-resources", type=int, help="step the capacity up to this many resources")
+    parser.add_argument("--recording-only", action="store_true", help="only (e): recording on and off")
+    parser.add_argument("--rounds", type=int, default=3, help="(e): off/on pairs (default 3)")
     args = parser.parse_args()
+    if args.recording_only:
+        with tempfile.TemporaryDirectory(prefix="bench_station_") as tmp:
+            print("(e) controller at 500 resources, recording off and on ...", flush=True)
+            recording_cost(Path(tmp), args.rounds, *((1.0, 2.0) if args.quick else (2.0, 5.0)))
+        return
 
     import bench_bus
 
@@ -343,6 +401,8 @@ def main() -> None:
                   + (f" {step.problem}" if step.problem else ""), flush=True)
             if not step.passed:
                 break
+        print("(e) controller at 500 resources, recording off and on ...", flush=True)
+        recording_cost(directory, 1 if quick else args.rounds, warmup, window)
 
     def ms(values_us: list[float], q: float) -> float:
         return percentile(values_us, q) / 1000
