@@ -39,8 +39,8 @@ from common.ctl import (
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.model.compiled import State
-from common.sdnotify import Notifier
 from common.recording.schema import RunMeta
+from common.sdnotify import Notifier
 
 from .control import PlanRequest
 from .hold import CommandHold

@@ -1,7 +1,7 @@
 """Replay a recorded run (common/recording) on a fresh controller core in virtual time and compare decisions.
 
 The inputs, in the recorded order and at the recorded times (the core's clock is set to each record's
-`t`): the values loaded at start, the measured values the controller took, the watchdog's verdicts
+`t`): the values loaded, the resources held, the measured values the controller took, the watchdog's verdicts
 (which resources were disabled at each tick), the ticks, the console requests, and when plans were asked
 for and answered. The decisions compared one to one: each command sent (values and seq), each operation
 transition, each plan request (goals, cause, disabled resources, the hash of the state planned from),
@@ -16,7 +16,8 @@ would still differ in which answer arrived when. So a live run's plans are input
 states, rebuilt from their recorded steps on the replayed start state; what the controller made of
 them (adopted or dropped, shorter plan taken or not, every command and transition that followed) is
 checked. The watchdog's verdicts are inputs too: they follow from when each 50 Hz state arrived, and
-the recording keeps what changed, not every arrival.
+the recording keeps what changed, not every arrival. So are the values loaded (persisted ones at
+start, mirrors) and the resources held until their mirror comes (controller/hold.py).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from common.model import Model
 from common.recording.reader import Record, Run
 from common.recording.schema import (
     CommandRecord,
+    HoldRecord,
     OperationRecord,
     PlanRecord,
     PlanRequestRecord,
@@ -52,7 +54,8 @@ from controller.stack import build_controller_stack
 DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
                        RecordKind.EVENT})
 # The event log's entries the core decides; the others are the service's notes (hub alive, mirrors missing).
-CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request"})
+CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request", "forbidden_state",
+                         "forbidden_state_cleared"})
 
 
 class ReplayError(ValueError):
@@ -147,7 +150,8 @@ class Replayer:
         self.asked: dict[int, PlanRequest] = {}
         self._apply: dict[RecordKind, Callable[[Record], None]] = {
             RecordKind.STATE: self._state, RecordKind.WATCHDOG: self._watchdog, RecordKind.TICK: self._tick,
-            RecordKind.RESTORE: self._restore, RecordKind.REQUEST: self._request,
+            RecordKind.RESTORE: self._restore, RecordKind.HOLD: self._hold, RecordKind.REQUEST: self._request,
+            RecordKind.COMMAND: self._command,
             RecordKind.PLAN_REQUEST: self._plan_request, RecordKind.PLAN: self._plan,
         }
 
@@ -198,11 +202,19 @@ class Replayer:
 
     def _tick(self, _record: Record) -> None:
         core = self.core
-        core.set_disabled(frozenset(self.unhealthy))
-        before = core.state
+        core.set_disabled(frozenset(self.unhealthy) | self.recorder.held)
         core.tick()
         self.recorder.ticked(self.unhealthy)
-        self.recorder.commands_changed(before, core.state)
+        self.recorder.send_changed()
+
+    def _command(self, record: Record) -> None:
+        # The controller also sends at its command rate, between ticks: a value that changed since the last
+        # tick (a mirror taken, a force) goes out then. Here is such a moment: what would it send?
+        self.recorder.send_changed([record.key])
+
+    def _hold(self, record: Record) -> None:
+        data: HoldRecord = record.data  # type: ignore[assignment]
+        self.core.set_unknown(data.paths)
 
     def _restore(self, record: Record) -> None:
         data: RestoreRecord = record.data  # type: ignore[assignment]
