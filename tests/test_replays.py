@@ -23,7 +23,7 @@ from controller.recorder import open_recording
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import run_in_process
 from deploy.replay.replay import Replayer
-from tests.fault_station.checks import RUN_TIMEOUT_S, nr_running_on_bolt
+from tests.fault_station.checks import RUN_TIMEOUT_S, nr_running_on_bolt, op_states
 from tests.fault_station.harness import Station
 
 REPLAYS = Path(__file__).with_name("replays")
@@ -107,3 +107,25 @@ def test_hub_killed_mid_run_recording_replays_to_the_same_decisions(recorded_sta
     assert [verdict for _, verdict in verdicts] == ["unhealthy", "recovered"], verdicts
     assert result.same, str(result.divergence)
     assert result.decisions["command"] > 8 and result.decisions["plan_request"] >= 2
+
+
+@pytest.mark.slow
+def test_controller_killed_and_restarted_on_its_database_both_runs_replay(recorded_station: Station,
+                                                                          tmp_path: Path) -> None:
+    station = recorded_station
+    station.start()
+    station.wait_for(lambda: (s := station.watch.status()) is not None and "finished" in op_states(s).values(),
+                     RUN_TIMEOUT_S, "an operation finished")
+    station.kill("controller")
+    station.start_controller(fresh=False)  # restores from its database, takes the hubs' mirrors
+    station.wait_for(station.watch.finished, RUN_TIMEOUT_S, "the station finishes after the controller restart")
+    station.close()
+
+    first, second = list_runs(tmp_path / "runs")
+    assert first.meta.outcome == "running" and second.meta.outcome == "finished"  # killed: never closed
+    for info in (first, second):
+        with open_run(info.path) as run:
+            loaded = list(run.events(kinds=[RecordKind.RESTORE]))
+            result = Replayer(run).replay()
+        assert result.same, f"{info.path}: {result.divergence}"
+    assert len(loaded) >= 2  # the second run loaded its persisted state and the hubs' mirrors

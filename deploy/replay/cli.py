@@ -29,6 +29,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             print("not saved as a test: a saved run must replay to the same decisions")
         return 1
     print(f"replay of {args.run}: {result.records} records, the same decisions ({counts})")
+    if result.cut_short:
+        print(f"the recording ends abruptly (its controller was killed): {result.cut_short} decisions replayed at its "
+              f"last instant were not recorded")
     if args.save_test:
         print(f"saved as a test: {saved} (tests/test_replays.py replays it)")
     return 0

@@ -80,6 +80,7 @@ class ReplayResult:
     records: int = 0
     decisions: dict[str, int] = field(default_factory=dict)  # compared, by kind
     divergence: Divergence | None = None
+    cut_short: int = 0  # decisions replayed after the end of a recording whose controller was killed
 
     @property
     def same(self) -> bool:
@@ -158,8 +159,10 @@ class Replayer:
     def replay(self) -> ReplayResult:
         result = ReplayResult()
         recorded: list[Record] = []
+        last_t = 0.0
         for record in self.run.events():
             result.records += 1
+            last_t = record.t
             if is_decision(record):
                 recorded.append(record)
             apply = self._apply.get(record.kind)
@@ -180,7 +183,11 @@ class Replayer:
                                                   else f" ({theirs.kind.value} {theirs.key} at t={theirs.t:.3f} s)"))
                 return result
             result.decisions[mine.kind.value] = result.decisions.get(mine.kind.value, 0) + 1
-        if len(recorded) != len(replayed):
+        if len(replayed) > len(recorded) and self.run.meta.outcome == "running" and \
+                all(r.t >= last_t for r in replayed[len(recorded):]):
+            # A killed controller's last batch of records (a fraction of a second) never reached the disk.
+            result.cut_short = len(replayed) - len(recorded)
+        elif len(recorded) != len(replayed):
             extra = (recorded if len(recorded) > len(replayed) else replayed)[min(len(recorded), len(replayed))]
             mine = _show(extra.data) if len(recorded) > len(replayed) else "nothing"
             theirs = "nothing" if len(recorded) > len(replayed) else _show(extra.data)
