@@ -23,6 +23,7 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     stale_after_s    = 0.5                       # a resource state older than this is stale
     listen  = ["tcp/0.0.0.0:7447"]               # optional: replaces [network].listen for the controller
     connect = []                                 # optional: replaces [network].connect for the controller
+    [controller.recording]   # optional: dir = "var/runs", max_mb = 200, keep = 50 (common/recording/settings.py)
 
     [security]                   # optional (common/security.py)
     mode = "tls"                 # "tls": mTLS on every link and access control by certificate;
@@ -30,11 +31,6 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     certs = "/etc/statehub/certs"  # certificates (`hubctl certs`); default ~/.config/statehub/{station}/certs
     operators = ["operator"]     # names whose certificates have the operator role (consoles, hubctl)
     verify_names = true          # a listener's certificate must name the host connected to
-
-    [controller.recording]                       # every run is recorded (common/recording); all optional
-    dir    = "var/runs"                          # one SQLite file per run, relative to the working dir
-    max_mb = 200                                 # a run goes on in a next part file beyond this size
-    keep   = 50                                  # recording files kept in dir: the oldest are deleted
 
     [hubs.pi-tool]               # one table per hub (ECU); the table name is the hub name
     host              = "pi-tool"   # machine (hostname or address) for deploy/ssh
@@ -77,6 +73,7 @@ from common.hostnames import host_problem, user_problem
 from common.keylines import KeyLines
 from common.keys import Keys, station_keys
 from common.model import Model
+from common.recording.settings import RecordingConfig
 from common.stations import ModelLoadError, load_model
 
 DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
@@ -109,12 +106,6 @@ class SecurityConfig(msgspec.Struct, frozen=True):
     certs: str = ""  # certificate directory; "" = ~/.config/statehub/{station}/certs
     operators: list[str] = msgspec.field(default_factory=lambda: ["operator"])  # names of the operator role
     verify_names: bool = True  # a listener's certificate must name the host a process connects to
-
-
-class RecordingConfig(msgspec.Struct, frozen=True):
-    dir: Annotated[str, msgspec.Meta(min_length=1)] = "var/runs"
-    max_mb: Annotated[float, msgspec.Meta(gt=0)] = 200.0
-    keep: Annotated[int, msgspec.Meta(ge=1)] = 50
 
 
 class ControllerConfig(msgspec.Struct, frozen=True):
@@ -398,11 +389,9 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
 
 
 def _load_controller(checker: _Checker, table: dict[str, Any]) -> ControllerConfig | None:
-    recording: RecordingConfig | None = RecordingConfig()
-    if "recording" in table:
-        path = ("controller", "recording")
-        recording_table = checker.table(table["recording"], path)
-        recording = None if recording_table is None else checker.section(RecordingConfig, recording_table, path)
+    path = ("controller", "recording")
+    recording_table = checker.table(table.get("recording", {}), path)
+    recording = None if recording_table is None else checker.section(RecordingConfig, recording_table, path)
     controller = checker.section(ControllerConfig, table, ("controller",), extra={"recording": recording},
                                  skip=("recording",))
     return controller if recording is not None else None
