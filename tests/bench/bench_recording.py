@@ -42,7 +42,8 @@ BATCH = 50
 async def cpu_per_state(directory: Path, resources: int, states: int, *, record: bool, changing: bool) -> float:
     """CPU seconds per state ingested (and ticked on), recording or not."""
     config, model = load_station(write_station(directory, f"rec_{os.getpid()}", resources))
-    service = ControllerService(config, model, MemoryBus(MemoryHub()), db=str(directory / "ctl.sqlite"),
+    bus = await MemoryBus(MemoryHub()).open()  # commands are published into it, heard by no one
+    service = ControllerService(config, model, bus, db=str(directory / "ctl.sqlite"),
                                 planner_process=False, record=RunMeta(mode="service") if record else None)
     routes = service._state_routes()
     keys = list(routes)
@@ -71,6 +72,7 @@ async def cpu_per_state(directory: Path, resources: int, states: int, *, record:
     for task in list(service._solving):
         task.cancel()
     service.store.close()
+    await bus.close()
     return spent / (len(batches) * BATCH)
 
 
