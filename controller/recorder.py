@@ -10,6 +10,8 @@ that sets the core's clock to `t` makes the same time-dependent decisions (retri
 
 from __future__ import annotations
 
+import logging
+import sqlite3
 import time
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
@@ -44,6 +46,8 @@ from common.recording.writer import RecordingWriter, recording_dir
 
 from .control import ControlCore, PlanRequest
 from .planner import NoPlan, Plan
+
+log = logging.getLogger("statehub.recording")
 
 TICK = msgspec.msgpack.encode(TickRecord())
 ALL_HEALTHY: Mapping[str, str] = MappingProxyType({})
@@ -264,10 +268,15 @@ def plan_record(request: PlanRequest, result: Plan | NoPlan | None, *, taken: bo
     return record
 
 
-def open_recording(settings: RecordingConfig, meta: RunMeta, model: Model) -> RecordingWriter:
-    """A new run's recording in `settings.dir` (bounded as `[controller.recording]` says)."""
+def open_recording(settings: RecordingConfig, meta: RunMeta, model: Model) -> RecordingWriter | None:
+    """A new run's recording in `settings.dir` (bounded as `[controller.recording]` says); None, said in the
+    log, where it cannot be written: the station runs without a recording rather than not at all."""
     meta.model_hash = station_model_hash(model)
     meta.operations_total = len(model.operations)
     meta.started = meta.started or time.time()
-    return RecordingWriter(recording_dir(settings.dir), meta, max_bytes=int(settings.max_mb * 1024 * 1024),
-                           keep=settings.keep)
+    directory = recording_dir(settings.dir)
+    try:
+        return RecordingWriter(directory, meta, max_bytes=int(settings.max_mb * 1024 * 1024), keep=settings.keep)
+    except (OSError, sqlite3.Error) as exc:
+        log.error("the run is not recorded: cannot write into %s ([controller.recording] dir): %s", directory, exc)
+        return None

@@ -7,13 +7,16 @@ from pathlib import Path
 
 import pytest
 
-from common.config import ConfigError, parse_config
+from common.config import ConfigError, RecordingConfig, parse_config
 from common.ctl import HubGone
 from common.recording.reader import RecordingError, list_runs, open_run
 from common.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
-from common.recording.writer import RecordingWriter
+from common.recording.writer import RECORDING_DIR_ENV, RecordingWriter
+from common.stations import load_model
+from controller.recorder import open_recording
 
 MB = 1024 * 1024
+FAULT_MODEL = "tests.fault_station.model:build_model"
 
 
 def writer(directory: Path, **options: object) -> RecordingWriter:
@@ -124,3 +127,11 @@ def test_recording_settings_in_hubs_toml_with_defaults_and_errors_by_key_and_lin
         parse_config(CONFIG.format(recording="[controller.recording]\nmax_mb = 0\nkeep = 0.5\nsize = 1"))
     assert [(p.line, p.key) for p in error.value.problems] == [
         (7, "controller.recording.max_mb"), (8, "controller.recording.keep"), (9, "controller.recording.size")]
+
+
+def test_a_recording_that_cannot_be_written_leaves_the_run_unrecorded_and_says_why(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "file").write_text("")  # the configured dir is a file
+    monkeypatch.delenv(RECORDING_DIR_ENV)  # the suite's own
+    assert open_recording(RecordingConfig(dir=str(tmp_path / "file")), RunMeta(), load_model(FAULT_MODEL)) is None
+    assert "the run is not recorded: cannot write into" in caplog.text and "[controller.recording] dir" in caplog.text

@@ -21,7 +21,7 @@ def recording_settings(config_path: str | Path | None) -> RecordingConfig:
 
 
 def in_process_recording(model: Model, model_reference: str, config_path: str | None, *, seed: int,
-                         budget: Budget) -> RecordingWriter:
+                         budget: Budget) -> RecordingWriter | None:
     """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
     counts = {"first_expansions": budget.first_expansions, "improve_expansions": budget.improve_expansions,
               "symbolic_layers": budget.symbolic_layers}
