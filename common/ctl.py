@@ -8,6 +8,7 @@ wire), with the fields a program acts on and a `text` for people. Why the contro
 from __future__ import annotations
 
 import enum
+from collections.abc import Iterable
 from typing import ClassVar
 
 import msgspec
@@ -38,8 +39,45 @@ class PlanStepInfo(msgspec.Struct, frozen=True):
     resource: str
     transition: str
     kind: str
-    guard: str
+    guard: str  # a pending step of the plan under way: what it waits for now (its guard, or the specification)
     done: bool
+
+
+class PlanInfo(msgspec.Struct, frozen=True, omit_defaults=True):
+    """The plan under way, in a status: by id (its steps and guards: the queryable `{station}/ctl/plan/{id}`)
+    and which of its steps are done, a bit per step (`done_mask`)."""
+
+    id: int  # 0: no plan (for `goals`, if any); ids count up per controller
+    goals: list[str] = msgspec.field(default_factory=list)
+    steps: int = 0
+    done: bytes = b""
+
+    def is_done(self, step: int) -> bool:
+        byte = step >> 3
+        return byte < len(self.done) and bool(self.done[byte] >> (step & 7) & 1)
+
+    @property
+    def done_count(self) -> int:
+        return sum(bin(b).count("1") for b in self.done)
+
+
+def done_mask(done: Iterable[int], steps: int) -> bytes:
+    """`PlanInfo.done` of the steps `done` (indices) of a plan of `steps` steps."""
+    mask = bytearray((steps + 7) // 8)
+    for j in done:
+        mask[j >> 3] |= 1 << (j & 7)
+    return bytes(mask)
+
+
+class PlanDetails(Message, kw_only=True):
+    """The reply of `{station}/ctl/plan/{id}`: the plan's steps with their guards. For the plan under way
+    (`current`) done and what each pending step waits for are as of the query; an older plan's steps
+    are as they were when it was dropped."""
+
+    id: int
+    goals: list[str]
+    steps: list[PlanStepInfo]
+    current: bool
 
 
 class LoopStats(msgspec.Struct, frozen=True):
@@ -269,24 +307,35 @@ ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound 
                 | Recovered | ControllerChanged)
 
 
+EVENT_WINDOW = 20  # the newest events of a full status
+
+
 class StatusMessage(Message, kw_only=True):
-    """`{station}/ctl/status`, at a few Hz and on every operation change."""
+    """`{station}/ctl/status`, a few times a second and on every operation change: what changed since the
+    controller's previous status (`seq` counts them), and every few seconds (`full`) the whole picture,
+    which a query on the key also answers. A delta carries the operations and health entries that changed,
+    `plan` when another plan is under way, `plan_done` when its done steps changed, and the events logged
+    since; a full status every operation and resource, the plan and the last EVENT_WINDOW events.
+    `common/statusview.py` merges them back into full statuses."""
 
     station: str
     controller: str
     time: float
     uptime: float
-    operations: list[OperationInfo]
-    health: list[ResourceHealthInfo]
-    plan: list[PlanStepInfo]  # the current plan's steps, done or not
-    plan_goals: list[str]
-    plans: int
-    replans: int
-    no_plans: int
-    abilities: int
+    seq: int = 0
+    full: bool = True
+    operations: list[OperationInfo] = msgspec.field(default_factory=list)
+    health: list[ResourceHealthInfo] = msgspec.field(default_factory=list)
+    plan: PlanInfo | None = None  # a delta: None while the same plan is under way
+    plan_done: bytes | None = None  # a delta: the plan's new `done`, None while unchanged
+    plans: int = 0
+    replans: int = 0
+    no_plans: int = 0
+    abilities: int = 0
     paused: bool = False
     finished: bool = False
     events: list[ConsoleEvent] = msgspec.field(default_factory=list)  # newest last
+    events_total: int = 0  # events the controller logged since it started
     loop: LoopStats | None = None  # None from a controller that does not measure itself
 
 

@@ -4,7 +4,9 @@
     {station}/res/{resource}/state   hub -> controller   measured state + mirror
     {station}/hub/{hub}/alive        liveliness token of a running hub
     {station}/hub/{hub}/selftest     self-test report
-    {station}/ctl/...                controller: global state, plans, health, console
+    {station}/ctl/status             controller -> consoles   status (what changed; a query: all of it)
+    {station}/ctl/plan/{id}          queryable: a plan's steps and guards (ctl.PlanDetails)
+    {station}/ctl/...                controller: global state, console requests
 
 Processes get their keys from `StationConfig.keys` (or `station_keys(name)` when they
 know only the station's name): built once per station, never spelled out twice.
@@ -75,6 +77,20 @@ class Keys:
         if not parts or any(not p or p.startswith("/") or p.endswith("/") for p in parts):
             raise KeyExprError(f"bad ctl key parts {parts!r}")
         return "/".join((self.station, "ctl", *parts))
+
+    def plan(self, plan_id: int) -> str:
+        """The queryable of the plan `plan_id` (its steps, guards and what its pending steps wait for)."""
+        return self.ctl("plan", str(plan_id))
+
+    @property
+    def all_plans(self) -> str:
+        return self.ctl("plan", "*")
+
+    def plan_of(self, key: str) -> int | None:
+        """7 for `station/ctl/plan/7`, else None."""
+        prefix = self.ctl("plan") + "/"
+        rest = key[len(prefix):] if key.startswith(prefix) else ""
+        return int(rest) if rest.isdigit() else None
 
     # parsing
     def resource_of(self, key: str) -> str | None:

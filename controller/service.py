@@ -18,38 +18,38 @@ import gc
 import logging
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 
 import msgspec
 
 from common.bus import Bus, Sample
 from common.config import StationConfig
 from common.ctl import (
+    EVENT_WINDOW,
     HubAlive,
     HubGone,
     LoopStats,
     NoPlanFound,
     OperationInfo,
     PlannedAlone,
-    PlanStepInfo,
     ResourceHealthInfo,
     StateSnapshot,
     StatusMessage,
 )
 from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
-from common.model.compiled import State
 from common.recording.schema import RunMeta
 from common.sdnotify import Notifier
 
 from .control import PlanRequest
 from .hold import CommandHold
-from .planner import NoPlan, Plan, PlanStep
+from .planner import NoPlan, Plan
 from .planworker import PlannerProcess
 from .recorder import RunRecorder, StepClock, open_recording
 from .requests import Requests
 from .stack import build_controller_stack
 from .state import StateStore
+from .statusfeed import PlanBook, StatusDiet
 from .watchdog import Watchdog
 
 log = logging.getLogger("statehub.controller")
@@ -128,11 +128,12 @@ class ControllerService:
         self._mismatch_logged: set[str] = set()
         self._planning: asyncio.Task[None] | None = None  # until the request under way has its first answer
         self._solving: set[asyncio.Task[None]] = set()  # requests whose answers are still coming
-        self._own_guards: dict[str, Callable[[State], bool]] = {}
         # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
+        self.plan_book = PlanBook(self.compiled, self.core)
+        self.status_diet = StatusDiet()
         sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
             record, station=config.station.name, model=config.station.model, config=config.path), model)
         self.recorder = RunRecorder(self.core, self.clock, sink)
@@ -402,27 +403,14 @@ class ControllerService:
         self._status_due = True
         self._dirty.set()
 
-    def _waits_for(self, step: PlanStep) -> str:
-        """What a pending step waits for: its own guard, or the specifications whose synthesized guard
-        holds it back although its own guard holds (the full synthesized guard is `hubctl plan --guards`)."""
-        t = self.compiled.by_name[step.transition]
-        state = self.core.state
-        if step.held_by and t.guard(state) is False and self._own_guard(t.name)(state):
-            return f"held back by specification {', '.join(step.held_by)}"
-        return step.guard
-
-    def _own_guard(self, name: str) -> Callable[[State], bool]:
-        test = self._own_guards.get(name)
-        if test is None:
-            test = self._own_guards[name] = self.compiled.predicate(self.compiled.by_name[name].source.guard)
-        return test
-
     # --- status out -----------------------------------------------------------------------
     async def _publish_status_loop(self, stop: asyncio.Event) -> None:
         last_snapshot = 0.0
+        self.status_diet.serve(self.bus, self.keys, self.plan_book)
         while not stop.is_set():
-            self.bus.publish(self.keys.ctl("status"), encode(self.status()))
             now = time.monotonic()
+            status = self.status_diet.next(self.status(), self.core.events.log, now)
+            self.bus.publish(self.keys.ctl("status"), encode(status))
             if now - last_snapshot >= STATE_SNAPSHOT_PERIOD_S:
                 snapshot = StateSnapshot(time=time.time(), values=self.compiled.unpack(self.core.state),
                                          forced=self.core.forced_paths())
@@ -431,6 +419,7 @@ class ControllerService:
             await asyncio.sleep(STATUS_PERIOD_S)
 
     def status(self) -> StatusMessage:
+        """The whole picture (`status_diet` publishes what changed of it)."""
         core = self.core
         now = time.monotonic()
         operations = [
@@ -442,22 +431,12 @@ class ControllerService:
         for resource in self.hubs_of:
             h = self.watchdog.health(resource)
             health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag, h.note))
-        plan: list[PlanStepInfo] = []
-        goals: list[str] = []
-        progress = core.progress
-        if progress is not None:
-            goals = list(progress.plan.goals)
-            for j, step in enumerate(progress.plan.steps):
-                resource = step.transition.split(".", 1)[0]
-                done = j in progress.done
-                plan.append(PlanStepInfo(resource, step.transition, step.kind.value,
-                                         step.guard if done else self._waits_for(step), done))
         events = core.events
         return StatusMessage(
             station=self.config.station.name, controller=self.controller_id, time=time.time(),
-            uptime=now - self.started, operations=operations, health=health, plan=plan, plan_goals=goals,
+            uptime=now - self.started, operations=operations, health=health, plan=self.plan_book.info(),
             plans=events.plans, replans=events.replans, no_plans=events.no_plans,
             abilities=events.abilities_started, paused=core.paused, finished=core.all_finished(),
-            events=events.log[-20:],
+            events=events.log[-EVENT_WINDOW:], events_total=len(events.log),
             loop=self.meter.take(),
         )

@@ -131,7 +131,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         assert (await on_operation(pilot, app, station, "PlaceBolts", "x")).accepted
         await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.INITIAL,
                     "PlaceBolts stops")
-        await until(pilot, station, lambda: not station.watch.status().plan_goals, "the plan is dropped")
+        await until(pilot, station, lambda: not station.watch.status().plan.goals, "the plan is dropped")
         assert (await on_operation(pilot, app, station, "PlaceBolts", "s")).accepted
         await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.EXECUTING,
                     "PlaceBolts runs again")

@@ -52,7 +52,7 @@ from tests.fault_station.harness import ROOT
 def status(events: list[ConsoleEvent], *, controller: str = "ctl-1", health: list[ResourceHealthInfo] | None = None,
            operations: list[OperationInfo] | None = None, uptime: float = 0.0) -> StatusMessage:
     return StatusMessage(station="s", controller=controller, time=0.0, uptime=uptime, operations=operations or [],
-                         health=health or [], plan=[], plan_goals=[], plans=0, replans=0, no_plans=0, abilities=0,
+                         health=health or [], plans=0, replans=0, no_plans=0, abilities=0,
                          events=events)
 
 

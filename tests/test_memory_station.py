@@ -28,7 +28,8 @@ from common.bus import Sample, Subscription
 from common.config import load_station
 from common.ctl import HubGone, StatusMessage
 from common.membus import MemoryBus, MemoryHub
-from common.messages import Codec, MessageError, decode
+from common.messages import Codec, MessageError
+from common.statusview import StatusFollower
 from controller.service import ControllerService
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime
@@ -65,7 +66,7 @@ class MemoryStation:
         self.watcher = await MemoryBus(self.network).open()
         statuses = self.watcher.subscribe(self.keys.ctl("status"), coalesce=False, maxlen=None)
         commands = self.watcher.subscribe(self.keys.all_cmd, coalesce=False, maxlen=None)
-        self._watch = [asyncio.create_task(self._record(statuses, self._on_status)),
+        self._watch = [asyncio.create_task(self._follow_status(statuses)),
                        asyncio.create_task(self._record(commands, self.commands.append))]
         await self.start_controller()
         for hub in self.config.hubs:
@@ -115,9 +116,14 @@ class MemoryStation:
         async for sample in subscription:
             record(sample)
 
-    def _on_status(self, sample: Sample) -> None:
-        with contextlib.suppress(MessageError):
-            self.statuses.append(decode(sample.payload, StatusMessage))
+    async def _follow_status(self, subscription: Subscription[Sample]) -> None:
+        assert self.watcher is not None
+        follower = StatusFollower(self.watcher, self.keys)  # the controller's deltas, merged: full statuses
+        async for sample in subscription:
+            with contextlib.suppress(MessageError):
+                status = await follower.take(sample.payload)
+                if status is not None:
+                    self.statuses.append(status)
 
     # what the watcher saw
     def status(self) -> StatusMessage | None:

@@ -166,8 +166,8 @@ class ConsoleApp(App[None]):
                 for event in self.events.new(status):
                     log.write(event_text(event))
             changed += self.table("operations").sync(operation_rows(status, self.info, self.clock))
-            changed += self.table("plan").sync(plan_rows(status))
-            self.table("plan").border_subtitle = plan_summary(status)
+            changed += self.table("plan").sync(plan_rows(status.plan, feed.plan))
+            self.table("plan").border_subtitle = plan_summary(status.plan)
             changed += self.table("resources").sync(resource_rows(status, self.info, feed.selftests))
         if feed.snapshot is not None:
             self.state_view.update(feed.snapshot, now)

@@ -1,9 +1,11 @@
 """The console's side of the bus: what the controller and the hubs publish, and the console's requests.
 
-`ConsoleLink.run()` keeps the newest `{station}/ctl/status`, `{station}/ctl/state` and
-self-test report of each hub (subscriptions coalesce: a console that draws slower than
-the controller publishes only ever sees the newest), and counts each change in
-`version` so that the screen redraws only when something arrived. `request()` asks the
+`ConsoleLink.run()` keeps the newest status (the controller's deltas on `{station}/ctl/status`
+merged into a full picture, common/statusview.py; on connecting it asks for the whole picture),
+the details of the plan under way (`{station}/ctl/plan/{id}`, asked when the plan or its done steps
+change), `{station}/ctl/state` and the self-test report of each hub (those subscriptions coalesce:
+a console that draws slower than the controller publishes only ever sees the newest), and counts
+each change in `version` so that the screen redraws only when something arrived. `request()` asks the
 controller on `{station}/ctl/request` and returns its `ConsoleReply`; a controller that
 does not answer is a refusal with that reason.
 
@@ -24,10 +26,11 @@ from typing import Protocol
 import msgspec
 
 from common.bus import Bus, BusError, Sample, Subscription
-from common.ctl import ConsoleReply, ConsoleRequest, StateSnapshot, StatusMessage
+from common.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
 from common.keys import station_keys
 from common.messages import Message, MessageError, decode, encode
 from common.selftest import SelftestMessage
+from common.statusview import StatusFollower, fetch_plan
 from common.zenoh_config import ZenohConfig, zenoh_config
 from common.zenohbus import ZenohBus
 
@@ -35,12 +38,15 @@ log = logging.getLogger("statehub.console")
 
 REQUEST_TIMEOUT_S = 3.0
 SELFTEST_QUERY_PERIOD_S = 2.0
+PLAN_CHECK_S = 0.5  # how often the console looks whether the plan's details are to be asked again
+PLAN_REFRESH_S = 5.0  # what pending steps wait for changes with the state: asked again at least this often
 
 
 class Feed(Protocol):
     """What the console app reads: a live `ConsoleLink`, or a canned feed in benchmarks."""
 
     status: StatusMessage | None
+    plan: PlanDetails | None  # the steps of the plan under way (of `status.plan.id`, or of an earlier one)
     snapshot: StateSnapshot | None
     selftests: dict[str, SelftestMessage]
     version: int
@@ -66,6 +72,7 @@ class ConsoleLink:
         self.connect = list(connect)
         self.config = zconfig or zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
+        self.plan: PlanDetails | None = None
         self.snapshot: StateSnapshot | None = None
         self.selftests: dict[str, SelftestMessage] = {}
         self.version = 0
@@ -83,11 +90,12 @@ class ConsoleLink:
             self._bus = bus
             self._opened.set()
             subscriptions = [
-                (bus.subscribe(self.keys.ctl("status")), self._on_status),
                 (bus.subscribe(self.keys.ctl("state")), self._on_snapshot),
                 (bus.subscribe(self.keys.all_selftest), self._on_selftest),
             ]
             tasks = [asyncio.create_task(self._consume(s, handler)) for s, handler in subscriptions]
+            tasks.append(asyncio.create_task(self._follow_status(bus)))
+            tasks.append(asyncio.create_task(self._follow_plan(bus)))
             tasks.append(asyncio.create_task(self._ask_selftests(bus)))
             try:
                 await asyncio.gather(*tasks)
@@ -130,16 +138,46 @@ class ConsoleLink:
         try:
             return decode(sample.payload, type_)
         except MessageError as exc:
-            if not self.undecodable:
-                log.warning("dropped %s: %s", sample.key, exc)
-            self.undecodable += 1
+            self._undecodable(sample, exc)
             return None
 
-    def _on_status(self, sample: Sample) -> None:
-        status = self._decode(sample, StatusMessage)
-        if isinstance(status, StatusMessage):
-            self.status = status
-            self.version += 1
+    def _undecodable(self, sample: Sample, exc: MessageError) -> None:
+        if not self.undecodable:
+            log.warning("dropped %s: %s", sample.key, exc)
+        self.undecodable += 1
+
+    async def _follow_status(self, bus: Bus) -> None:
+        # Every sample: a delta applies only to the picture before it (a gap is mended by asking).
+        follower = StatusFollower(bus, self.keys)
+        async for sample in bus.subscribe(self.keys.ctl("status"), coalesce=False):
+            try:
+                status = await follower.take(sample.payload)
+            except MessageError as exc:
+                self._undecodable(sample, exc)
+                continue
+            if status is not None:
+                self.status = status
+                self.version += 1
+
+    async def _follow_plan(self, bus: Bus) -> None:
+        """Ask the plan's details when another plan is under way or its done steps changed (at most every
+        PLAN_CHECK_S), and every PLAN_REFRESH_S while it has steps pending (what they wait for moves on)."""
+        asked: tuple[int, bytes] | None = None
+        asked_at = 0.0
+        while True:
+            await asyncio.sleep(PLAN_CHECK_S)
+            status = self.status
+            plan = status.plan if status is not None else None
+            if plan is None or not plan.id:
+                continue
+            now = asyncio.get_running_loop().time()
+            pending = plan.done_count < plan.steps
+            if asked != (plan.id, plan.done) or (pending and now - asked_at >= PLAN_REFRESH_S):
+                details = await fetch_plan(bus, self.keys, plan.id)
+                asked, asked_at = (plan.id, plan.done), now
+                if details is not None:
+                    self.plan = details
+                    self.version += 1
 
     def _on_snapshot(self, sample: Sample) -> None:
         snapshot = self._decode(sample, StateSnapshot)

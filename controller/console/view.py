@@ -18,6 +18,8 @@ from common.ctl import (
     Event,
     ForbiddenStateCleared,
     OperationInfo,
+    PlanDetails,
+    PlanInfo,
     Recovered,
     Replanned,
     RequestAnswered,
@@ -121,20 +123,24 @@ def operation_rows(status: StatusMessage, info: StationInfo, clock: OperationClo
 
 # --- the plan ----------------------------------------------------------------------------------
 
-def plan_rows(status: StatusMessage) -> dict[str, Row]:
+def plan_rows(plan: PlanInfo | None, details: PlanDetails | None) -> dict[str, Row]:
+    """The steps of the plan under way (`details`, from the plan queryable) with their done marks from the
+    status, newer than the details; none while the details of this plan have not come."""
     rows: dict[str, Row] = {}
-    for j, step in enumerate(status.plan):
-        mark = Text("✔", "green") if step.done else Text("·", "cyan")
-        waits = "" if step.done else clip(step.guard, GUARD_WIDTH)
+    if plan is None or details is None or details.id != plan.id:
+        return rows
+    for j, step in enumerate(details.steps):
+        done = plan.is_done(j)
+        mark = Text("✔", "green") if done else Text("·", "cyan")
+        waits = "" if done else clip(step.guard, GUARD_WIDTH)
         rows[str(j)] = (str(j + 1), mark, step.transition, step.kind, waits)
     return rows
 
 
-def plan_summary(status: StatusMessage) -> str:
-    if not status.plan:
-        return "no plan" + (f" for {', '.join(status.plan_goals)}" if status.plan_goals else "")
-    done = sum(1 for s in status.plan if s.done)
-    return f"{done}/{len(status.plan)} steps for {clip(', '.join(status.plan_goals), 60)}"
+def plan_summary(plan: PlanInfo | None) -> str:
+    if plan is None or not plan.id:
+        return "no plan" + (f" for {', '.join(plan.goals)}" if plan is not None and plan.goals else "")
+    return f"{plan.done_count}/{plan.steps} steps for {clip(', '.join(plan.goals), 60)}"
 
 
 # --- global state ------------------------------------------------------------------------------

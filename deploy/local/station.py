@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from common.config import StationConfig, load_station
-from common.ctl import StatusMessage
-from common.messages import MessageError, decode
+from common.ctl import PlanDetails, StatusMessage
+from common.messages import MessageError
 from common.model import Model, OperationState
 from common.process import free_port
 from common.security import operator_identity
 from common.station_net import security_banner
+from common.statusview import StatusFollower, fetch_plan
 from common.zenohbus import ZenohBus
 
 from .localcerts import local_certs, watcher_zenoh_config
@@ -118,7 +119,8 @@ class Progress:
         self.last_activity_at = 0.0
         self.reported: set[str] = set()
 
-    def update(self, status: StatusMessage) -> None:
+    def update(self, status: StatusMessage, plan: PlanDetails | None = None) -> None:
+        """Print what changed; `plan`: the details of the plan under way (its steps), if known."""
         say = self.say
         done = sum(1 for op in status.operations if op.state is OperationState.FINISHED)
         for op in status.operations:
@@ -132,8 +134,9 @@ class Progress:
             extra = f"  ({op.error})" if op.error else ""
             say(f"[{done:2d}/{self.total}] {status.uptime:6.1f}s  {label}  {op.name}{extra}")  # type: ignore[operator]
         current: dict[str, str] = {}
-        for step in status.plan:
-            if not step.done and step.resource not in current:
+        steps = plan.steps if plan is not None and status.plan is not None and plan.id == status.plan.id else []
+        for j, step in enumerate(steps):
+            if not status.plan.is_done(j) and step.resource not in current:  # type: ignore[union-attr]
                 current[step.resource] = step.transition.split(".", 2)[1] if "." in step.transition else step.transition
         unhealthy = {h.resource: h.reason for h in status.health if not h.healthy}
         activity = " | ".join(f"{r}: {a}" for r, a in sorted(current.items()))
@@ -211,7 +214,9 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
     last: StatusMessage | None = None
     try:
         async with ZenohBus(watcher_zenoh_config(config, model, port, certs)) as bus:
-            statuses = bus.subscribe(keys.ctl("status"))
+            statuses = bus.subscribe(keys.ctl("status"), coalesce=False)
+            follower = StatusFollower(bus, keys)
+            plan: PlanDetails | None = None
             while True:
                 if stop.is_set():
                     say("interrupted: stopping the station")
@@ -231,11 +236,16 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                 except TimeoutError:
                     continue
                 try:
-                    last = decode(sample.payload, StatusMessage)
+                    status = await follower.take(sample.payload)
                 except MessageError as exc:
                     say(f"ignored a malformed status: {exc}")
                     continue
-                progress.update(last)
+                if status is None:
+                    continue
+                last = status
+                if last.plan is not None and last.plan.id and (plan is None or plan.id != last.plan.id):
+                    plan = await fetch_plan(bus, keys, last.plan.id) or plan  # once per plan: its steps
+                progress.update(last, plan)
                 if last.finished:
                     result = 0
                     break

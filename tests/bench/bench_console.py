@@ -25,10 +25,13 @@ from common.ctl import (
     ConsoleReply,
     ConsoleRequest,
     OperationInfo,
+    PlanDetails,
+    PlanInfo,
     PlanStepInfo,
     ResourceHealthInfo,
     StateSnapshot,
     StatusMessage,
+    done_mask,
 )
 from common.model import Kind, OperationState
 from common.selftest import DeviceReport, SelftestMessage
@@ -52,10 +55,12 @@ class CannedFeed:
             station="bench", controller="bench-0", time=time.time(), uptime=0.0,
             operations=[OperationInfo(f"Op{i}", OperationState.INITIAL) for i in range(OPERATIONS)],
             health=[ResourceHealthInfo(r, f"hub{i // 8}", True, age=0.01) for i, r in enumerate(self.names)],
-            plan=[PlanStepInfo(self.names[j % resources], f"{self.names[j % resources]}.tighten.enabled",
-                               "deliberate", f"!{self.names[j % resources]}.run_c && ur.pos_m == at_bolt{j}", False)
-                  for j in range(PLAN_STEPS)],
-            plan_goals=[f"Op{i}" for i in range(10)], plans=1, replans=0, no_plans=0, abilities=0)
+            plan=PlanInfo(1, [f"Op{i}" for i in range(10)], PLAN_STEPS, done_mask((), PLAN_STEPS)),
+            plans=1, replans=0, no_plans=0, abilities=0)
+        self.plan: PlanDetails | None = PlanDetails(id=1, goals=[f"Op{i}" for i in range(10)], current=True, steps=[
+            PlanStepInfo(self.names[j % resources], f"{self.names[j % resources]}.tighten.enabled",
+                         "deliberate", f"!{self.names[j % resources]}.run_c && ur.pos_m == at_bolt{j}", False)
+            for j in range(PLAN_STEPS)])
         self.snapshot: StateSnapshot | None = StateSnapshot(
             time=time.time(), values={f"{r}.{name}": False if name != "count_e" else 0
                                       for r in self.names for name, _ in KINDS})
@@ -83,7 +88,7 @@ class CannedFeed:
         for i in rnd.sample(range(len(operations)), 3):
             operations[i] = msgspec.structs.replace(operations[i], state=rnd.choice(MOVING),
                                                     since=round_ * 0.3)
-        plan = [msgspec.structs.replace(s, done=j < round_ % PLAN_STEPS) for j, s in enumerate(status.plan)]
+        plan = msgspec.structs.replace(status.plan, done=done_mask(range(round_ % PLAN_STEPS), PLAN_STEPS))
         self.status = msgspec.structs.replace(status, health=health, operations=operations, plan=plan,
                                               uptime=round_ * 0.3, time=time.time())
         values = dict(snapshot.values)

@@ -1,6 +1,7 @@
 """The fault station's watcher: a `Bus` in a background thread that records the station's traffic.
 
-With the receive time it records every `{station}/ctl/status` (StatusMessage) and
+With the receive time it records every `{station}/ctl/status` (StatusMessage, the controller's deltas
+merged into full statuses by common/statusview.py) and
 `{station}/ctl/state` (StateSnapshot), every state of every resource (`{station}/res/*/state`,
 decoded with the resource's Codec) and every command (`{station}/res/*/cmd`), and counts
 what it could not decode (the garbage a test publishes itself). Nothing is coalesced: a
@@ -23,6 +24,7 @@ from common.config import StationConfig
 from common.ctl import StateSnapshot, StatusMessage
 from common.messages import Codec, MessageError, decode
 from common.model import Model
+from common.statusview import StatusFollower
 from common.zenoh_config import zenoh_config
 from common.zenohbus import ZenohBus
 
@@ -87,12 +89,12 @@ class Watcher:
         async with ZenohBus(config) as bus:
             self.bus = bus
             subscriptions = [
-                (bus.subscribe(self.keys.ctl("status"), coalesce=False, maxlen=None), self._on_status),
                 (bus.subscribe(self.keys.ctl("state"), coalesce=False, maxlen=None), self._on_snapshot),
                 (bus.subscribe(self.keys.all_state, coalesce=False, maxlen=None), self._on_state),
                 (bus.subscribe(self.keys.all_cmd, coalesce=False, maxlen=None), self._on_command),
             ]
             tasks = [asyncio.create_task(self._consume(sub, handler)) for sub, handler in subscriptions]
+            tasks.append(asyncio.create_task(self._follow_status(bus)))
             self._ready.set()
             await self._stop.wait()
             for task in tasks:
@@ -108,13 +110,18 @@ class Watcher:
         with self.lock:
             self.record.undecodable[key] = self.record.undecodable.get(key, 0) + 1
 
-    def _on_status(self, sample: Sample, at: float) -> None:
-        try:
-            status = decode(sample.payload, StatusMessage)
-        except MessageError:
-            return self._bad(sample.key)
-        with self.lock:
-            self.record.statuses.append(Seen(at, status))
+    async def _follow_status(self, bus: ZenohBus) -> None:
+        follower = StatusFollower(bus, self.keys)
+        async for sample in bus.subscribe(self.keys.ctl("status"), coalesce=False, maxlen=None):
+            at = time.monotonic()
+            try:
+                status = await follower.take(sample.payload)
+            except MessageError:
+                self._bad(sample.key)
+                continue
+            if status is not None:
+                with self.lock:
+                    self.record.statuses.append(Seen(at, status))
 
     def _on_snapshot(self, sample: Sample, at: float) -> None:
         try:
