@@ -158,6 +158,9 @@ def cmd_up(args: argparse.Namespace) -> int:
         print(f"reason: {summary.reason}")
     if recording is not None:
         print(f"recording: {recording.path} (hubctl replay {recording.path})")
+        from .runs.cli import timeline_after_run
+
+        timeline_after_run(recording.path)
     return 0 if summary.finished else 1
 
 
@@ -265,6 +268,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .replay.cli import register_replay_command
 
     register_replay_command(sub)
+
+    from .runs.cli import register_run_commands
+
+    register_run_commands(sub)
     return parser
 
 

@@ -26,6 +26,7 @@ from common.security import operator_identity
 from common.station_net import security_banner
 from common.statusview import StatusFollower, fetch_plan
 from common.zenohbus import ZenohBus
+from deploy.runs.cli import timeline_after_run
 
 from .localcerts import local_certs, watcher_zenoh_config
 from .recordings import recording_since
@@ -272,6 +273,7 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
     recording = recording_since(options.config, began_wall - 1.0) if options.record else None
     if recording is not None:
         say(f"recording: {recording} (hubctl replay {recording})")
+        timeline_after_run(recording, say)
     return result
 
 
