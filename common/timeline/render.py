@@ -3,8 +3,9 @@ then the plans with their reasons and the faults as lists).
 
 Lanes run top to bottom: the resources (each ability's span, unhealthy periods shaded red), then the
 operations (a span per state). Plan and replan requests are vertical lines numbered at the top (their
-reasons: `plan_lines`, listed in the HTML and printed by `hubctl timeline`), faults red crosses on their lane (a dotted line across when they
-concern no lane, a hub gone). `render` returns where each lane was drawn, in pixels of the PNG.
+reasons: `plan_lines`, listed in the HTML and printed by `hubctl timeline`), faults red crosses on their
+lane (a dotted line across when they concern no lane, a hub gone). `render` returns where each lane was
+drawn, in pixels of the PNG.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ WIDTH_IN = 14.0
 LANE_IN = 0.24
 MARGIN_IN = 1.6  # title, plan numbers, time axis
 FORMATS = (".html", ".svg", ".png")
+BAR = 0.3  # half an operation's bar, in lanes (a band of `Drawn`)
+ABILITY_BAR = 0.35
 LABEL_WIDTH = 0.04  # an ability's span this share of the run wide or wider shows its name
 
 ABILITY_COLORS = {"done": "#4878a8", "aborted": "#e08a2c", "running": "#9aa5b1"}
@@ -39,7 +42,7 @@ class Drawn:
 
     width: int
     height: int
-    bands: dict[str, tuple[float, float]]  # lane -> (top row, bottom row)
+    bands: dict[str, tuple[float, float]]  # lane -> (top row, bottom row) of the bars drawn in it
     x0: float  # column of t = 0
     x_per_s: float  # columns per second
 
@@ -81,10 +84,10 @@ def figure(timeline: Timeline) -> tuple[Figure, Drawn]:
     height_px = fig.bbox.height
     bands = {}
     for lane, i in row.items():
-        (_, y_top), (_, y_bottom) = to_pixels.transform([(0, i - 0.4), (0, i + 0.4)])
+        (_, y_top), (_, y_bottom) = to_pixels.transform([(0, i - BAR), (0, i + BAR)])
         bands[lane] = (height_px - y_top, height_px - y_bottom)
     (x0, _), (x1, _) = to_pixels.transform([(0, 0), (1, 0)])
-    return fig, Drawn(int(round(fig.bbox.width)), int(round(height_px)), bands, x0, x1 - x0)
+    return fig, Drawn(round(fig.bbox.width), round(height_px), bands, x0, x1 - x0)
 
 
 def _lanes(ax: object, timeline: Timeline, row: dict[str, int]) -> None:
@@ -94,7 +97,7 @@ def _lanes(ax: object, timeline: Timeline, row: dict[str, int]) -> None:
                            facecolors=UNHEALTHY_COLOR, alpha=0.25, hatch="///", edgecolor=UNHEALTHY_COLOR, zorder=1)
     wide = timeline.end * LABEL_WIDTH
     for span in timeline.abilities:
-        ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - 0.35, 0.7),  # type: ignore[attr-defined]
+        ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - ABILITY_BAR, 2 * ABILITY_BAR),  # type: ignore[attr-defined]
                        facecolors=ABILITY_COLORS.get(span.outcome, "#888888"), edgecolor="white", linewidth=0.4,
                        zorder=2)
         if span.end - span.start >= wide:
@@ -102,7 +105,7 @@ def _lanes(ax: object, timeline: Timeline, row: dict[str, int]) -> None:
                     va="center", fontsize=5, color="white", clip_on=True, zorder=3)
     for span in timeline.operation_spans:
         if span.lane in row:
-            ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - 0.3, 0.6),  # type: ignore[attr-defined]
+            ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - BAR, 2 * BAR),  # type: ignore[attr-defined]
                            facecolors=OPERATION_COLORS.get(span.outcome, "#888888"), zorder=2)
 
 
