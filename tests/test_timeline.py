@@ -8,6 +8,7 @@ recording of the fault station checks the unhealthy period (shaded) and the faul
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.image import imread
+from textual.widgets import Static
 
 from common.ctl import HubGone
 from common.recording.reader import Run, open_run
@@ -27,10 +29,13 @@ from common.recording.schema import (
     StateRecord,
     WatchdogRecord,
 )
-from common.recording.writer import RecordingWriter
+from common.recording.writer import RECORDING_DIR_ENV, RecordingWriter
 from common.stations import load_model
 from common.timeline.model import Timeline, build_timeline
 from common.timeline.render import DPI, WIDTH_IN, Drawn, render
+from controller.console.app import ConsoleApp
+from controller.console.gantt import NAME_WIDTH, gantt_lines
+from controller.console.station import StationInfo
 from controller.control import VIRTUAL_BUDGET
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import RunSummary, run_in_process
@@ -195,3 +200,51 @@ def test_hubctl_runs_lists_the_runs_newest_first_with_their_outcome(tmp_path: Pa
     assert "unreadable" in rows[3] and "broken.sqlite" in rows[3]
     assert hubctl(["runs", str(tmp_path / "none")]) == 0
     assert "no recorded run in" in capsys.readouterr().out
+
+
+def test_the_console_gantt_has_the_same_spans_in_text(tmp_path: Path) -> None:
+    with open_run(fault_recording(tmp_path)) as run:
+        timeline = build_timeline(run)
+    lines = {line.plain[:NAME_WIDTH].strip(): line.plain[NAME_WIDTH + 1:] for line in gantt_lines(timeline, 79)}
+    cells = 79 - NAME_WIDTH - 1  # 60: a tenth of a second each
+    assert len(lines["nr"]) == len(lines["ur"]) == len(lines["TightenBolt1"]) == cells
+    assert lines["ur"] == " " * 10 + "█" * 20 + " " * 30  # the move, 1.0 to 3.0 s
+    assert lines["nr"] == " " * 20 + "░" * 30 + " " * 10  # unhealthy 2.0 to 5.0 s
+    assert lines["TightenBolt1"] == "█" * 59 + "█"  # executing, then in error at the end
+    assert lines["plans, 6 s"] == "|" + " " * 19 + "▼" + " " * 39
+
+
+class Quiet:
+    """A feed from no controller: the timeline panel reads the recording, not the bus."""
+
+    status = plan = snapshot = None
+    selftests: dict[str, object] = {}
+    version = 0
+    connected = False
+
+    async def run(self) -> None:
+        await asyncio.get_running_loop().create_future()
+
+    async def request(self, request: object) -> object:
+        raise AssertionError("no request is made")
+
+
+async def test_the_console_shows_the_current_runs_timeline_on_t(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path))
+    fault_recording(tmp_path)
+    model = load_model(FAULT_MODEL)
+    info = StationInfo(station="fault_station", kinds={p: v.kind for p, v in model.variables.items()})
+    app = ConsoleApp(info, Quiet())  # type: ignore[arg-type]
+    async with app.run_test(size=(120, 40)) as pilot:
+        await pilot.press("t")
+        for _ in range(200):
+            await pilot.pause(0.05)
+            if app.timeline is not None:
+                break
+        await pilot.pause(0.1)
+        shown = str(app.query_one("#timeline", Static).render())
+        assert app.query_one("#panels").has_class("hidden")
+        assert "░" in shown and "TightenBolt1" in shown and "resource health changed: nr" in shown, shown
+        await pilot.press("t")
+        assert not app.query_one("#panels").has_class("hidden")

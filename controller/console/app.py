@@ -4,6 +4,8 @@ Panels: operations (state, goal, time in state, error), the current plan (each s
 the guard it waits for), resources (hub, mode, health, state age, mirror, self-test),
 the global state (filtered by path, kind, recently changed; forced values marked) and
 the event log (the controller's: replans, faults, requests; and the watchdog's verdicts).
+`t` shows the current run's timeline instead (a text Gantt chart, gantt.py, of the newest
+recording in `[controller.recording] dir`: the console runs on the controller PC).
 
 Every action is a request to the controller, answered accepted or refused with the
 reason (controller/requests.py says what each one does): `s` start, `a` start every
@@ -18,23 +20,28 @@ what changes, not what exists.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import time
 from collections import deque
 from collections.abc import Sequence
+from pathlib import Path
 
 from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Grid, Vertical
+from textual.containers import Grid, Vertical, VerticalScroll
 from textual.css.query import NoMatches
 from textual.widgets import Footer, Header, Input, RichLog, Static
 from textual.worker import Worker, WorkerState
 
 from common.ctl import ConsoleReply, ConsoleRequest, StatusMessage
-from common.model import OperationState
+from common.model import Model, OperationState
+from common.recording.writer import recording_dir
+from common.timeline.model import Timeline
 
+from .gantt import current_timeline, gantt_lines
 from .link import ConsoleLink, Feed
 from .station import StationInfo
 from .table import RowTable
@@ -60,6 +67,7 @@ from .view import (
 REFRESH_S = 0.3  # at most ~3 redraws a second: what a person can read
 CLOCK_S = 1.0  # clocks on screen (time in state, changed ago) tick in whole seconds
 SILENT_AFTER_S = 2.0  # the controller publishes its status every 0.25 s
+TIMELINE_S = 2.0  # the timeline panel reads the run's recording again this often while it is shown
 
 
 class ConsoleApp(App[None]):
@@ -73,6 +81,9 @@ class ConsoleApp(App[None]):
     #statusline { height: 1; padding: 0 1; background: $boost; }
     #force { display: none; }
     #force.shown { display: block; }
+    #timeline-panel { display: none; border: round $primary; height: 1fr; }
+    #timeline-panel.shown { display: block; }
+    #panels.hidden { display: none; }
     """
     BINDINGS = [
         Binding("s", "start", "start"),
@@ -86,6 +97,7 @@ class ConsoleApp(App[None]):
         Binding("slash", "filter", "filter"),
         Binding("k", "kind", "kind"),
         Binding("n", "recent", "recent"),
+        Binding("t", "timeline", "timeline"),
         Binding("escape", "leave_input", "back", show=False),
         Binding("q", "quit", "quit"),
     ]
@@ -110,6 +122,8 @@ class ConsoleApp(App[None]):
         self._status_seen: StatusMessage | None = None
         self._reply_line = Text("")
         self.log_lines: deque[str] = deque(maxlen=1000)  # from logging, any thread; drained by redraw
+        self.timeline: Timeline | None = None  # the current run's, from its recording (key t)
+        self._timeline_models: dict[str, Model] = {}
 
     # --- layout --------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -122,6 +136,8 @@ class ConsoleApp(App[None]):
                 yield Input(placeholder="filter by path (/), kind (k), recently changed (n)", id="filter")
                 yield RowTable(STATE_COLUMNS, title="", id="state")
             yield RichLog(id="events", max_lines=5000, wrap=True)
+        with VerticalScroll(id="timeline-panel"):
+            yield Static(id="timeline")
         yield Static(id="statusline")
         yield Input(placeholder="force: path = value [!override] (Enter forces, Esc cancels)", id="force")
         yield Footer()
@@ -131,6 +147,7 @@ class ConsoleApp(App[None]):
         self._update_state_title()
         self.run_worker(self.feed.run(), name="bus", group="bus", exit_on_error=False)
         self.set_interval(self.refresh_s, self.redraw)
+        self.set_interval(TIMELINE_S, self._timeline_due)
         self.table("operations").focus()
 
     def table(self, name: str) -> RowTable:
@@ -296,6 +313,39 @@ class ConsoleApp(App[None]):
     def action_recent(self) -> None:
         f = self.state_filter
         self._set_filter(StateFilter(f.text, f.kind, not f.recent))
+
+    def action_timeline(self) -> None:
+        """Show the current run's timeline instead of the panels (its recording, read on this host), or back."""
+        panel = self.query_one("#timeline-panel")
+        shown = not panel.has_class("shown")
+        panel.set_class(shown, "shown")
+        self.query_one("#panels").set_class(shown, "hidden")
+        if shown:
+            self._timeline_due()
+
+    def _timeline_due(self) -> None:
+        with contextlib.suppress(NoMatches):
+            if self.query_one("#timeline-panel").has_class("shown"):
+                self.run_worker(self._load_timeline(), group="timeline", exclusive=True)
+
+    async def _load_timeline(self) -> None:
+        directory = recording_dir(self.info.recordings or "var/runs")
+        try:  # SQLite and the model: off the loop
+            self.timeline = await asyncio.to_thread(current_timeline, directory, self._timeline_models)
+        except Exception as exc:  # a recording being rotated, a model that does not load: said, not fatal
+            self.query_one("#timeline", Static).update(Text(f"timeline: {type(exc).__name__}: {exc}", "yellow"))
+            return
+        self.show_timeline(directory)
+
+    def show_timeline(self, directory: Path) -> None:
+        panel = self.query_one("#timeline-panel")
+        if self.timeline is None:
+            panel.border_title = "Timeline"
+            self.query_one("#timeline", Static).update(Text(f"no run recorded in {directory}", "yellow"))
+            return
+        panel.border_title = f"Timeline of run {self.timeline.run} ({directory}; t: back to the panels)"
+        lines = gantt_lines(self.timeline, max(40, panel.size.width - 4))
+        self.query_one("#timeline", Static).update(Text("\n").join(lines))
 
     def action_leave_input(self) -> None:
         field = self.query_one("#force", Input)

@@ -21,6 +21,7 @@ class StationInfo:
     modes: dict[str, str] = field(default_factory=dict)  # resource -> emulate / sim / real
     lease_ms: int = 2000
     default_connect: tuple[str, ...] = ()  # where the controller listens, as seen from its own host
+    recordings: str = ""  # [controller.recording] dir: where the controller records its runs (the timeline)
 
     @staticmethod
     def from_station(config: StationConfig, model: Model) -> StationInfo:
@@ -31,6 +32,7 @@ class StationInfo:
             modes={resource: hub.devices[resource].mode for resource, hub in config.resources.items()},
             lease_ms=config.network.lease_ms,
             default_connect=controller_endpoints(config),
+            recordings=config.controller.recording.dir,
         )
 
 
