@@ -19,6 +19,7 @@ from common.recording.reader import list_runs, open_run
 from common.recording.schema import CommandRecord, RecordKind, RunMeta
 from common.recording.writer import RECORDING_DIR_ENV
 from common.stations import load_model
+from common.timeline.model import build_timeline
 from controller.recorder import open_recording
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import run_in_process
@@ -103,8 +104,12 @@ def test_hub_killed_mid_run_recording_replays_to_the_same_decisions(recorded_sta
         (gone,) = [r.t for r in run.events(kinds=[RecordKind.LIVELINESS], key="pi-tool") if not r.data.alive]
         verdicts = [(r.t, r.data.verdict) for r in run.events(kinds=[RecordKind.WATCHDOG], key="nr", since=gone)]
         result = Replayer(run).replay()
+        timeline = build_timeline(run)
     # The unhealthy span: from the hub's token vanishing until the restarted hub's states come.
     assert [verdict for _, verdict in verdicts] == ["unhealthy", "recovered"], verdicts
+    # ... and the timeline (hubctl timeline) shades it on nr's lane.
+    assert [(p.start, p.end) for p in timeline.unhealthy if p.lane == "nr" and p.start >= gone] == [
+        (verdicts[0][0], verdicts[1][0])]
     assert result.same, str(result.divergence)
     assert result.decisions["command"] > 8 and result.decisions["plan_request"] >= 2
 
