@@ -31,6 +31,9 @@ from .steps import Move, StepSystem
 # NNF nodes over (variable index, value mask): ("lit", i, mask) | ("eqv", i, j, equal) |
 # ("and", children) | ("or", children) | ("const", bool)
 Node = tuple
+_IN_STATE = (0, -1)  # a fact of the evaluated state: layer 0, no achiever
+APPLIED = 1 << 30  # tested-in-layer mark of an applied relaxed action: never tested again
+HELD = -2  # mark of a conjunct that held in an earlier layer: it holds from then on
 
 
 @dataclass(frozen=True)
@@ -99,15 +102,25 @@ class _Encoder:
         tag = node[0]
         if tag == "const":
             return repr(node[1])
-        if tag == "lit":
-            return f"(r[{node[1]}] & {node[2]}) != 0"
+        if tag == "lit":  # an int mask: true when not 0 (a test's value is only ever used as a truth)
+            return f"r[{node[1]}] & {node[2]}"
         if tag == "eqv":
             _, i, j, equal = node
             # Masks of two variables compare bit for bit only over one shared domain; the search never
             # relies on a relaxed test being tight, only on it never being false where a real one holds.
-            return "True" if not equal else f"(r[{i}] & r[{j}]) != 0 or {self.full[i] != self.full[j]}"
+            return "True" if not equal else f"(r[{i}] & r[{j}] or {self.full[i] != self.full[j]})"
+        if not node[1]:
+            return repr(tag == "and")
+        children = node[1]
+        if tag == "or":  # literals of one variable in a disjunction test one merged mask (synthesized guards)
+            merged: dict[int, int] = {}
+            for c in children:
+                if c[0] == "lit":
+                    merged[c[1]] = merged.get(c[1], 0) | c[2]
+            children = [("lit", c[1], merged.pop(c[1])) if c[0] == "lit" else c
+                        for c in children if c[0] != "lit" or c[1] in merged]
         joiner = " and " if tag == "and" else " or "
-        return "(" + joiner.join(self.source(c) for c in node[1]) + ")" if node[1] else repr(tag == "and")
+        return "(" + joiner.join(self.source(c) for c in children) + ")"
 
     def compile(self, node: Node) -> Callable[[list[int]], bool]:
         return eval(f"lambda r: {self.source(node)}")  # generated from the model's own predicates
@@ -192,6 +205,8 @@ class RelaxedModel:
         for a, action in enumerate(actions):
             for i in action.reads:
                 self.readers[i].append(a)
+        self.wake = self._wake_functions(guards)
+        self.constants: list[tuple[tuple[int, int], ...]] = [action.constants for action in actions]
         self.system = system
         self.automatic_ready: Callable[[list[int]], list[int]] = namespace["automatic_ready"]  # type: ignore[assignment]
         self.domains = [d.values for d in compiled.domains]
@@ -200,6 +215,48 @@ class RelaxedModel:
                                                     for values in self.domains]
         # Tests of nested nodes, by id; the node is kept beside its test so that its id is never reused.
         self.tests: dict[int, tuple[Node, Callable[[list[int]], bool]]] = {}
+
+    def _wake_functions(self, guards: dict[int, tuple[Node, tuple[Node, ...]]]
+                        ) -> list[Callable[[list[int], list[int], list[int], list[int], int, list[int]], None]]:
+        """Per variable, one generated call that tests the guards of its readers once a layer gave it a
+        value: `wake_i(r, tested, waiting, known, layer, ready)` appends to `ready` each reader whose guard
+        now holds.
+
+        Masks only grow during an evaluation, so what held still holds: a guard that failed waits on its
+        first failing conjunct (`waiting[a]`, -1 before its first test) and is tested again, from that
+        conjunct on, only when a variable that conjunct reads gained a value (`tested[a]`: the layer a was
+        last tested in, APPLIED once applied). Synthesized guards share most of their conjuncts (the
+        robot's 33 moves the same few kilobytes), so each distinct conjunct is evaluated once a layer at
+        most: `known[c]` is HELD once it held, else the layer it last failed in.
+        """
+        encoder = self.encoder
+        ids: dict[str, int] = {}
+        lines = []
+        for number, (_, conjuncts) in guards.items():
+            lines.append(f"def first_failing_{number}(r, k, known, layer):")
+            for k, conjunct in enumerate(conjuncts):
+                source = encoder.source(conjunct)
+                c = ids.setdefault(source, len(ids))
+                lines += [f"    if k <= {k} and known[{c}] != {HELD}:",
+                          f"        if known[{c}] == layer or not ({source}):",
+                          f"            known[{c}] = layer", f"            return {k}",
+                          f"        known[{c}] = {HELD}"]
+            lines.append(f"    return {len(conjuncts)}")
+        self.distinct_conjuncts = len(ids)
+        for i, readers in enumerate(self.readers):
+            lines.append(f"def wake_{i}(r, tested, waiting, known, layer, ready):")
+            for a in readers:
+                number = self.actions[a].move[0]
+                conjuncts = guards[number][1]
+                waits_on_i = (-1, *(k for k, c in enumerate(conjuncts) if i in _reads(c, set())))
+                lines += [f"    if tested[{a}] < layer and waiting[{a}] in {waits_on_i!r}:",
+                          f"        tested[{a}] = layer",
+                          f"        k = first_failing_{number}(r, waiting[{a}], known, layer)",
+                          f"        if k == {len(conjuncts)}: ready.append({a})",
+                          f"        else: waiting[{a}] = k"]
+            lines.append("    return None")
+        namespace = _define(lines)
+        return [namespace[f"wake_{i}"] for i in range(len(self.readers))]  # type: ignore[misc]
 
     def holds(self, node: Node, masks: list[int]) -> bool:
         found = self.tests.get(id(node))
@@ -230,44 +287,51 @@ class RelaxedPlan:
         relaxed = self.relaxed
         actions = relaxed.actions
         value_bits = relaxed.value_bits
-        r = [value_bits[i][v] for i, v in enumerate(state)]
+        r = list(map(dict.__getitem__, value_bits, state))
         own = list(r)
-        # fact (variable, bit) -> (layer, achieving action or -1 for the state itself)
-        facts: dict[tuple[int, int], tuple[int, int]] = {(i, m): (0, -1) for i, m in enumerate(r)}
+        # fact (variable, bit) -> (layer, achieving action or -1 for the state itself); a bit is in r exactly
+        # when its fact is known
+        facts: dict[tuple[int, int], tuple[int, int]] = dict.fromkeys(enumerate(r), _IN_STATE)
         applied: dict[int, int] = {}  # action -> the layer whose masks made its guard hold
         goal_test = self.goal_test
         layer = 0
         # Layer 0 is the state itself, where the relaxed tests are the real guards: the step system's
         # one generated call finds the enabled deliberate and effect moves (action ids are move indices).
         ready = relaxed.system._enabled(state) + relaxed.automatic_ready(r)
-        candidates: set[int] = set()
+        wake, constants = relaxed.wake, relaxed.constants
+        tested = [-1] * len(actions)
+        waiting = [-1] * len(actions)
+        known = [-1] * relaxed.distinct_conjuncts
+        changed: set[int] = set()
         while not goal_test(r):
             if layer:
-                ready = sorted(a for a in candidates if a not in applied and actions[a].test(r))
+                # Only a guard reading a variable that gained a value can have become true.
+                ready = []
+                for i in changed:
+                    wake[i](r, tested, waiting, known, layer, ready)
+                ready.sort()
             if not ready:
                 return Estimate(INF, frozenset())
-            gained: list[tuple[int, int, int]] = []
-            for a in ready:
-                applied[a] = layer
-                action = actions[a]
-                for i, bit in action.constants:
-                    if not r[i] & bit:
-                        gained.append((i, bit, a))
-                for target, source in action.copies:
-                    for bit in self._copied(target, source, r[source]):
-                        if not r[target] & bit:
-                            gained.append((target, bit, a))
             layer += 1
-            changed: set[int] = set()
-            for i, bit, a in gained:
-                if (i, bit) not in facts:
-                    facts[i, bit] = (layer, a)
-                    r[i] |= bit
-                    changed.add(i)
-            readers = relaxed.readers
-            candidates = {a for i in changed for a in readers[i]}
-            if not changed:
+            gained: list[tuple[int, int]] = []
+            for a in ready:  # each new fact from its first achiever in action order; r grows after the layer
+                applied[a] = layer - 1
+                tested[a] = APPLIED
+                for fact in constants[a]:
+                    if fact not in facts:
+                        facts[fact] = (layer, a)
+                        gained.append(fact)
+                for target, source in actions[a].copies:
+                    for bit in self._copied(target, source, r[source]):
+                        if (target, bit) not in facts:
+                            facts[target, bit] = (layer, a)
+                            gained.append((target, bit))
+            if not gained:
                 return Estimate(INF, frozenset())
+            changed = set()
+            for i, bit in gained:
+                r[i] |= bit
+                changed.add(i)
         return self._extract(facts, applied, own, r)
 
     def _copied(self, target: int, source: int, mask: int) -> list[int]:

@@ -18,6 +18,7 @@ reading a written variable).
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ from common.model.compiled import MAX_AUTOMATIC_STEPS, CompiledModel, CompiledTr
 Move = tuple[int, int]  # (CompiledTransition.number, outcome index)
 StateTest = Callable[[State], bool]
 CYCLE_CHECK_AFTER = 64  # chain length from which repeated states are looked for (automatic cycles)
+RACE_ANSWERS_KEPT = 200_000  # RaceCheck answers by projected state
 
 
 class RaceCheck:
@@ -43,21 +45,40 @@ class RaceCheck:
     def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
         effects = [e for e in compiled.effects if not (e.resources & disabled)]
         self._watch: dict[int, tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]] = {}
+        # The answer depends only on the state after t on the variables the pairs' guards and outcomes
+        # read (an outcome writes constants or copies of what its transition reads): a search asks the
+        # same few projections thousands of times, so answers are kept by (t, projection).
+        self._relevant: dict[int, Callable[[State], object]] = {}
+        self._known: dict[tuple[int, object], bool] = {}
         for t in compiled.deliberate:
             pairs = []
+            relevant: set[int] = set()
             for f in effects:
                 if f.reads & t.writes:
                     rivals = tuple(e for e in effects if e is not f and (e.writes & f.reads or f.writes & e.reads))
                     if rivals:
                         pairs.append((f, rivals))
+                        relevant |= f.reads.union(*(e.reads for e in rivals))
             if pairs:
                 self._watch[t.number] = tuple(pairs)
+                self._relevant[t.number] = operator.itemgetter(*sorted(relevant))
 
     def races(self, state: State, t: CompiledTransition) -> bool:
         pairs = self._watch.get(t.number)
         if pairs is None:
             return False
         after = t.outcomes[0](state)
+        key = (t.number, self._relevant[t.number](after))
+        known = self._known.get(key)
+        if known is None:
+            if len(self._known) >= RACE_ANSWERS_KEPT:  # memory stays bounded in a long run
+                self._known.clear()
+            known = self._known[key] = self._overtaken(after, pairs)
+        return known
+
+    @staticmethod
+    def _overtaken(after: State,
+                   pairs: tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]) -> bool:
         for f, rivals in pairs:
             if not f.guard(after):
                 continue
