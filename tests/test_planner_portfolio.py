@@ -128,3 +128,31 @@ def test_same_seed_same_run_whatever_the_hash_seed() -> None:
         outputs.append(done.stdout)
     assert outputs[0] == outputs[1]
     assert outputs[0].strip().splitlines()[-1].startswith("True")
+
+
+def test_goals_asked_again_from_a_state_on_the_last_plan_get_its_rest_without_a_search() -> None:
+    model = synthetic.build_model(12)
+    compiled = CompiledModel(model)
+    goals = {op.name: op.goal for op in model.operations}
+    goal = all_of(*goals.values())
+    planner = Planner(compiled)
+    final = planner.plan(compiled.initial(), goals, budget=Budget())
+    assert isinstance(final, Plan) and final.stats.minimal
+    middle = final.states[5]
+    again = planner.plan(middle, goals, budget=Budget())
+    assert isinstance(again, Plan) and again.stats.method == "reused" and again.stats.expanded == 0
+    assert again.steps == final.steps[5:] and again.stats.minimal  # the rest of a shortest plan is shortest
+    validate_plan(compiled, middle, again, goal)
+    # The first plan only (not shown minimal): asked again, its rest comes first and A* still improves it.
+    planner = Planner(compiled)
+    first = planner.plan(compiled.initial(), goals, budget=Budget(improve_expansions=0))
+    assert isinstance(first, Plan) and not first.stats.minimal
+    answers = list(planner.plan_anytime(compiled.initial(), goals, budget=Budget()))
+    assert [a.stats.method for a in answers] == ["reused", "astar"]
+    assert answers[0].steps == first.steps and len(answers[-1].steps) < len(first.steps)
+    # A start the plan does not pass through is searched afresh.
+    (bolt,) = model.operations[-1].goal.paths()
+    off_plan = compiled.with_values(compiled.initial(), {bolt: "tightened"})
+    assert off_plan not in answers[-1].states
+    fresh = next(iter(planner.plan_anytime(off_plan, goals, budget=Budget(improve_expansions=0))))
+    assert isinstance(fresh, Plan) and fresh.stats.method == "greedy"

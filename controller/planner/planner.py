@@ -24,6 +24,7 @@ from .heuristics import GoalHeuristic, HeuristicOptions
 from .plans import NoPlan, Plan, PlanStats, PlanStep, moves_of
 from .portfolio import Budget, _Run
 from .relaxed import RelaxedModel
+from .reuse import PlanMemory
 from .steps import RaceCheck, StepSystem, stable_goal
 from .symbolic import SymbolicPlanner
 from .validate import PlanInvalid, check_plan, plan_from_moves
@@ -63,6 +64,7 @@ class Planner:
         self._symbolic: dict[frozenset[str], SymbolicPlanner] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
+        self.memory = PlanMemory(compiled)
 
     # --- caches -----------------------------------------------------------------------------
     def _race(self, disabled: frozenset[str]) -> RaceCheck:
@@ -140,6 +142,7 @@ class Planner:
             self._symbolic.clear()
             self._abstractions.clear()
             self._heuristics.clear()
+            self.memory.clear()
 
     # --- planning -----------------------------------------------------------------------------
     def plan(
@@ -171,7 +174,10 @@ class Planner:
         budget = budget or Budget()
         with self._lock:
             run = _Run(self, start, tuple(goals), goals, frozenset(disabled), budget)
-            yield from run.answers()
+            for answer in run.answers():
+                if isinstance(answer, Plan) and answer.steps:
+                    self.memory.remember(run.key, answer)
+                yield answer
 
     def revalidate(
         self,

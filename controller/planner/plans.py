@@ -43,7 +43,8 @@ def moves_of(compiled: CompiledModel, steps: Iterable[PlanStep]) -> list[tuple[i
 
 @dataclass(frozen=True)
 class PlanStats:
-    method: str  # the member that found it: "greedy", "astar", "symbolic", "bfs", "trivial", "revalidated"
+    method: str  # the member that found it: "greedy", "astar", "symbolic", "bfs", "trivial", "revalidated",
+    # "reused" (the rest of the plan last found for the same goals, `reuse.py`)
     seconds: float = 0.0  # wall time of the whole call until this answer, heuristic build included
     expanded: int = 0  # states whose successors were generated (all members so far)
     generated: int = 0  # successor states produced

@@ -76,6 +76,7 @@ class _Run:
         self.goals = goals
         self.disabled = disabled
         self.budget = budget
+        self.key = (tuple(goals[n] for n in names), disabled)  # what the planner's memory knows the goals by
         self.began = time.perf_counter()
         self.expanded = 0
         self.generated = 0
@@ -122,7 +123,13 @@ class _Run:
         if is_goal(start):
             yield Plan((), (start,), self.names, self._stats("trivial", minimal=True))
             return
-        first, proof = self._greedy(goal, is_goal, budget.first_expansions, self._deadline(budget.seconds))
+        first: Plan | NoPlan | None = self._recalled(is_goal)
+        proof = None
+        if first is None:
+            first, proof = self._greedy(goal, is_goal, budget.first_expansions, self._deadline(budget.seconds))
+        elif first.stats.minimal:
+            yield first
+            return
         if proof is not None:
             yield self._unreachable(proof)
             return
@@ -132,7 +139,7 @@ class _Run:
                 yield first
                 return
             self.first_seconds, self.first_length = first.stats.seconds, len(first.steps)
-            incumbent = replace(first, stats=self._stats("greedy"))
+            incumbent = replace(first, stats=self._stats(first.stats.method))
             if budget.improve_expansions <= 0:
                 yield incumbent
                 return
@@ -168,6 +175,14 @@ class _Run:
         yield NoPlan(f"{', '.join(self.names)}: no plan found within the budget ({self.expanded} states expanded, "
                      f"{time.perf_counter() - self.began:.1f} s); not shown unreachable, retried later"
                      + self._disabled_note(), (), self._stats("portfolio"))
+
+    def _recalled(self, is_goal: Callable[[State], bool]) -> Plan | None:
+        """The rest of the plan last found for these goals, when the start is on it (`reuse.py`), validated."""
+        found = self.planner.memory.recall(self.key, self.start)
+        if found is None:
+            return None
+        plan = self._plan(found[0], "reused", found[1], is_goal)
+        return plan if isinstance(plan, Plan) else None
 
     def _shortened(self, moves: list[Move], is_goal: Callable[[State], bool], start: State,
                    work: int = ELIMINATION_FIRST) -> list[Move]:
@@ -250,7 +265,7 @@ class _Run:
         if found.timed_out:
             return None, None
         if incumbent is not None:  # no plan below the incumbent's length: it is a shortest one
-            return replace(incumbent, stats=self._stats("greedy", minimal=True)), None
+            return replace(incumbent, stats=self._stats(incumbent.stats.method, minimal=True)), None
         if found.reason == "heuristic":
             return None, heuristic.why_unreachable(self.start)
         if found.reason == "exhausted":

@@ -18,6 +18,7 @@ model's own guards and actions are all it reads.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -34,6 +35,8 @@ Node = tuple
 _IN_STATE = (0, -1)  # a fact of the evaluated state: layer 0, no achiever
 APPLIED = 1 << 30  # tested-in-layer mark of an applied relaxed action: never tested again
 HELD = -2  # mark of a conjunct that held in an earlier layer: it holds from then on
+GOALS_KEPT = 256  # relaxed plans (with their estimates) kept by goal
+ESTIMATES_KEPT = 20_000  # estimates kept per goal
 
 
 @dataclass(frozen=True)
@@ -213,6 +216,7 @@ class RelaxedModel:
         # A state's value is always of its variable's domain, so a plain value key is exact here.
         self.value_bits: list[dict[object, int]] = [{v: 1 << k for k, v in enumerate(values)}
                                                     for values in self.domains]
+        self._goals: OrderedDict[Predicate, RelaxedPlan] = OrderedDict()
         # Tests of nested nodes, by id; the node is kept beside its test so that its id is never reused.
         self.tests: dict[int, tuple[Node, Callable[[list[int]], bool]]] = {}
 
@@ -265,7 +269,16 @@ class RelaxedModel:
         return found[1](masks)
 
     def goal(self, goal: Predicate) -> RelaxedPlan:
-        return RelaxedPlan(self, goal)
+        """The heuristic toward `goal`, kept (with its estimates) for the next request that asks it: the
+        goal agenda asks the same growing conjunctions again when a goal set is planned again."""
+        found = self._goals.get(goal)
+        if found is None:
+            found = self._goals[goal] = RelaxedPlan(self, goal)
+            if len(self._goals) > GOALS_KEPT:
+                self._goals.popitem(last=False)
+        else:
+            self._goals.move_to_end(goal)
+        return found
 
 
 class RelaxedPlan:
@@ -278,11 +291,20 @@ class RelaxedPlan:
         self.goal_conjuncts = conjuncts_of(self.goal_node)
         self.goal_failing = relaxed.encoder.failing(self.goal_conjuncts)
         self.evaluations = 0
+        self._estimates: dict[State, Estimate] = {}
 
     def __call__(self, state: State) -> int:
         return self.evaluate(state).h
 
     def evaluate(self, state: State) -> Estimate:
+        estimate = self._estimates.get(state)
+        if estimate is None:
+            if len(self._estimates) >= ESTIMATES_KEPT:  # memory stays bounded in a long run
+                self._estimates.clear()
+            estimate = self._estimates[state] = self._evaluate(state)
+        return estimate
+
+    def _evaluate(self, state: State) -> Estimate:
         self.evaluations += 1
         relaxed = self.relaxed
         actions = relaxed.actions
