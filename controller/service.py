@@ -269,8 +269,8 @@ class ControllerService:
     def _forged(self, resource: str, mirror: Any) -> None:
         """A mirror of a command in our name with a seq we never sent: forged, and it holds back ours."""
         if mirror.epoch == self.station_hold.epoch:  # once per epoch: the new one's commands replace it at once
-            self.station_hold.renew(f"{resource}: the hub mirrors seq {mirror.seq} of this controller, which sent "
-                            f"{self.command_seq.get(resource)} at most: a forged command")
+            self.station_hold.renew(f"{resource}: the hub mirrors seq {mirror.seq} of this controller, which "
+                                    f"sent {self.command_seq.get(resource)} at most: a forged command")
 
     async def _watch_hubs(self) -> None:
         async for event in self.bus.watch_liveliness(self.keys.all_alive):
