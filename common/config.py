@@ -12,6 +12,7 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     listen   = []                # zenoh endpoints a process listens on ([] = none)
     connect  = ["tcp/decs.local:7447"]   # zenoh endpoints a process connects to
     lease_ms = 2000              # a frozen process is declared gone after this long (>= 100)
+    max_message_bytes = 4194304  # a larger message is dropped by zenoh on receipt (>= 65536)
 
     [controller]
     host             = "decs"                    # machine it runs on
@@ -75,6 +76,7 @@ from common.keys import Keys, station_keys
 from common.model import Model
 from common.recording.settings import RecordingConfig
 from common.stations import ModelLoadError, load_model
+from common.zenoh_config import DEFAULT_MAX_MESSAGE_BYTES
 
 DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
 DEVICE_MODES = ("emulate", "sim", "real")
@@ -98,6 +100,7 @@ class NetworkConfig(msgspec.Struct, frozen=True):
     listen: list[str] = msgspec.field(default_factory=list)
     connect: list[str] = msgspec.field(default_factory=list)
     lease_ms: Annotated[int, msgspec.Meta(ge=100)] = 2000
+    max_message_bytes: Annotated[int, msgspec.Meta(ge=65536)] = DEFAULT_MAX_MESSAGE_BYTES
 
 
 class SecurityConfig(msgspec.Struct, frozen=True):
@@ -181,7 +184,7 @@ class StationConfig(msgspec.Struct, frozen=True):
             mode=self.network.mode,
             listen=list(section.listen) if section.listen is not None else list(self.network.listen),
             connect=list(section.connect) if section.connect is not None else list(self.network.connect),
-            lease_ms=self.network.lease_ms,
+            lease_ms=self.network.lease_ms, max_message_bytes=self.network.max_message_bytes,
         )
 
     def loopback_network(self, process: str, port: int = 7447) -> NetworkConfig:
@@ -195,7 +198,8 @@ class StationConfig(msgspec.Struct, frozen=True):
         endpoint = f"tcp/127.0.0.1:{port}"
         controller = process == "controller"
         return NetworkConfig(mode="peer", listen=[endpoint] if controller else ["tcp/127.0.0.1:0"],
-                             connect=[] if controller else [endpoint], lease_ms=self.network.lease_ms)
+                             connect=[] if controller else [endpoint], lease_ms=self.network.lease_ms,
+                             max_message_bytes=self.network.max_message_bytes)
 
     def load_model(self) -> Model:
         """Import the station model named by [station] model; errors name the file and line."""

@@ -6,6 +6,8 @@
     {station}/hub/{hub}/selftest     self-test report
     {station}/ctl/status             controller -> consoles   status (what changed; a query: all of it)
     {station}/ctl/plan/{id}          queryable: a plan's steps and guards (ctl.PlanDetails)
+    {station}/ctl/holder/{epoch}/{controller}/{host}/{pid}
+                                     liveliness token of the controller holding the station
     {station}/ctl/...                controller: global state, console requests
 
 Processes get their keys from `StationConfig.keys` (or `station_keys(name)` when they
@@ -91,6 +93,14 @@ class Keys:
         prefix = self.ctl("plan") + "/"
         rest = key[len(prefix):] if key.startswith(prefix) else ""
         return int(rest) if rest.isdigit() else None
+
+    def holder(self, epoch: int, controller: str, host: str, pid: int) -> str:
+        """The liveliness token of the controller holding the station (common/holder.py)."""
+        return self.ctl("holder", str(epoch), check_name("controller", controller), check_name("host", host), str(pid))
+
+    @property
+    def all_holders(self) -> str:
+        return f"{self.station}/ctl/holder/**"
 
     # parsing
     def resource_of(self, key: str) -> str | None:

@@ -2,14 +2,19 @@
 
 Per resource (`Codec(resource)`), two struct types built at runtime:
 
-    Command  controller -> hub   {schema, model_hash, <command vars>, seq, controller, time}
+    Command  controller -> hub   {schema, model_hash, <command vars>, seq, controller, epoch, time}
     State    hub -> controller   {schema, model_hash, <measured vars>, mirror, status, detail,
                                   seq, time, hub}
 
 Variables are keyed by their short name (`run_c`), as drivers use them; values use
 the model's domains (bool, enumeration name, small int). A measured value may be
 None: unknown (device lost, not read yet). `mirror` is the last command the hub
-applied, as it received it (seq included), or None before the first one.
+applied, as it received it (seq included), or None before the first one. `epoch`: the
+controller's hold on the station (common/holder.py); a hub orders `seq` per (controller, epoch).
+
+Every payload has a size limit computed from its struct (`Codec.max_command_bytes`,
+`max_state_bytes`, common/bounds.py): a longer payload is refused (`OversizedPayload`)
+before anything is decoded. Names are bounded (`MAX_NAME_CHARS`), and so is `detail`.
 
 Every payload carries `schema` (the layout version of this module, `SCHEMA`) and
 `model_hash` (`model_hash(resource)`: a stable hash of the resource's name and of
@@ -37,13 +42,19 @@ from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 
+from common.bounds import max_encoded_size
 from common.model import Domain, Kind, Resource, Value, Variable
 
-SCHEMA = 1  # bump on any change of the envelope layout below or of HubStatus
+SCHEMA = 2  # bump on any change of the envelope layout below or of HubStatus
 
-COMMAND_ENVELOPE = ("schema", "model_hash", "seq", "controller", "time")
+COMMAND_ENVELOPE = ("schema", "model_hash", "seq", "controller", "epoch", "time")
 STATE_ENVELOPE = ("schema", "model_hash", "mirror", "status", "detail", "seq", "time", "hub")
 RESERVED_NAMES = frozenset(COMMAND_ENVELOPE + STATE_ENVELOPE)
+MAX_NAME_CHARS = 128  # a controller id or a hub name on the wire
+MAX_DETAIL_CHARS = 500  # a state's `detail`: hubs cut theirs to this
+Name = Annotated[str, msgspec.Meta(max_length=MAX_NAME_CHARS)]
+Count = Annotated[int, msgspec.Meta(ge=0)]
+Hash = Annotated[str, msgspec.Meta(max_length=64)]  # ours are 16 hex digits; longer ones are refused
 
 
 class HubStatus(enum.StrEnum):
@@ -65,6 +76,10 @@ class MessageError(ValueError):
     def __init__(self, message: str, *, resource: str | None = None) -> None:
         self.resource = resource
         super().__init__(message)
+
+
+class OversizedPayload(MessageError):
+    """A payload longer than any valid message of its key: refused before it is decoded."""
 
 
 class SchemaMismatch(MessageError):
@@ -117,7 +132,8 @@ def _field_type(domain: Domain) -> tuple[Any, bool]:
     if all(isinstance(v, str) for v in values):
         return Literal[tuple(values)], True  # type: ignore[valid-type]
     # A mixed domain (not built by Domain.enum/range): decode loosely, check by hand.
-    return bool | int | str, False
+    longest = max((len(v) for v in values if isinstance(v, str)), default=0)
+    return bool | int | Annotated[str, msgspec.Meta(max_length=longest)], False
 
 
 def _format(value: object) -> str:
@@ -133,6 +149,17 @@ def _format_hash(value: object) -> str:
 
 
 # --- the per-resource codec -------------------------------------------------------------------
+
+class CommandSender(msgspec.Struct, frozen=True):
+    """The identity fields of a command, read without the rest (a map's other keys are skipped)."""
+
+    controller: Name
+    epoch: Count = 0
+    seq: Count = 0
+
+
+_sender_decoder = msgspec.msgpack.Decoder(CommandSender)
+
 
 class Codec:
     """Command and state structs of one resource, and their encoding.
@@ -153,7 +180,7 @@ class Codec:
                                  f"field name {v.name!r}")
         base = "".join(part.capitalize() for part in self.resource.replace("-", "_").split("_")) or "Resource"
 
-        cmd_fields: list[tuple[str, Any] | tuple[str, Any, Any]] = [("schema", int), ("model_hash", str)]
+        cmd_fields: list[tuple[str, Any] | tuple[str, Any, Any]] = [("schema", int), ("model_hash", Hash)]
         # Variables whose domain msgspec cannot check by itself (mixed domains): checked by hand.
         self._unchecked_commands: list[Variable] = []
         self._unchecked_measured: list[Variable] = []
@@ -162,24 +189,27 @@ class Codec:
             cmd_fields.append((v.name, ftype))
             if not complete:
                 self._unchecked_commands.append(v)
-        cmd_fields += [("seq", int), ("controller", str), ("time", float)]
+        cmd_fields += [("seq", Count), ("controller", Name), ("epoch", Count, 0), ("time", float)]
         self.Command: type[msgspec.Struct] = msgspec.defstruct(
             f"{base}Command", cmd_fields, kw_only=True, frozen=True, module=__name__)
 
-        state_fields: list[tuple[str, Any] | tuple[str, Any, Any]] = [("schema", int), ("model_hash", str)]
+        state_fields: list[tuple[str, Any] | tuple[str, Any, Any]] = [("schema", int), ("model_hash", Hash)]
         for v in self.measured:
             ftype, complete = _field_type(v.domain)
             state_fields.append((v.name, ftype | None))
             if not complete:
                 self._unchecked_measured.append(v)
-        state_fields += [("mirror", self.Command | None), ("status", HubStatus), ("detail", str, ""),
-                         ("seq", int), ("time", float), ("hub", str)]
+        state_fields += [("mirror", self.Command | None), ("status", HubStatus),
+                         ("detail", Annotated[str, msgspec.Meta(max_length=MAX_DETAIL_CHARS)], ""),
+                         ("seq", Count), ("time", float), ("hub", Name)]
         self.State: type[msgspec.Struct] = msgspec.defstruct(
             f"{base}State", state_fields, kw_only=True, frozen=True, module=__name__)
 
         self._encoder = msgspec.msgpack.Encoder()
         self._command_decoder = msgspec.msgpack.Decoder(self.Command)
         self._state_decoder = msgspec.msgpack.Decoder(self.State)
+        self.max_command_bytes = max_encoded_size(self.Command)
+        self.max_state_bytes = max_encoded_size(self.State)
 
     def __repr__(self) -> str:
         return f"Codec({self.resource}, hash={self.model_hash})"
@@ -213,9 +243,10 @@ class Codec:
             result[name] = value
         return result
 
-    def command(self, values: Mapping[str, Value], *, seq: int, controller: str,
+    def command(self, values: Mapping[str, Value], *, seq: int, controller: str, epoch: int = 0,
                 time: float | None = None) -> msgspec.Struct:
-        """A command with every command variable (keyed `run_c` or `nr.run_c`); checks the domains."""
+        """A command with every command variable (keyed `run_c` or `nr.run_c`); checks the domains.
+        `epoch` 0: a sender without a persisted hold on the station (a test, `hubctl modeltest`)."""
         given = self._values(values, self.commands, "command")
         missing = [v.path for v in self.commands if v.name not in given]
         if missing:
@@ -224,7 +255,7 @@ class Codec:
         for v in self.commands:
             self._check_value(v, given[v.name], seq=seq, controller=controller)
         return self.Command(schema=SCHEMA, model_hash=self.model_hash, seq=seq, controller=controller,
-                            time=_time.time() if time is None else time, **given)
+                            epoch=epoch, time=_time.time() if time is None else time, **given)
 
     def state(self, values: Mapping[str, Value | None], *, status: HubStatus | str, seq: int, hub: str,
               mirror: msgspec.Struct | None = None, detail: str = "", time: float | None = None) -> msgspec.Struct:
@@ -258,6 +289,7 @@ class Codec:
 
     def decode_command(self, data: bytes | bytearray | memoryview) -> Any:
         """The Command in `data`; raises MessageError (DomainError: a value out of its domain)."""
+        self._check_size(data, self.max_command_bytes, "command")
         try:
             command = self._command_decoder.decode(data)
         except Exception:
@@ -269,6 +301,7 @@ class Codec:
 
     def decode_state(self, data: bytes | bytearray | memoryview) -> Any:
         """The State in `data`; raises MessageError."""
+        self._check_size(data, self.max_state_bytes, "state")
         try:
             state = self._state_decoder.decode(data)
         except Exception:
@@ -282,7 +315,22 @@ class Codec:
             self._check_unchecked(state.mirror, self._unchecked_commands, " (mirror)")
         return state
 
+    def sender(self, data: bytes | bytearray | memoryview) -> CommandSender:
+        """Who claims to have sent the command in `data` (size-checked, nothing else decoded):
+        a hub refuses a command of anyone but the station's holder before decoding it."""
+        self._check_size(data, self.max_command_bytes, "command")
+        try:
+            return _sender_decoder.decode(data)
+        except Exception as exc:
+            raise MessageError(f"resource {self.resource}: command has no readable sender ({exc})",
+                               resource=self.resource) from None
+
     # -- checks and explanations -------------------------------------------------------------
+    def _check_size(self, data: bytes | bytearray | memoryview, limit: int, what: str) -> None:
+        if len(data) > limit:
+            raise OversizedPayload(f"resource {self.resource}: {what} of {len(data)} bytes, more than any valid "
+                                   f"{what} of this resource ({limit} bytes): not decoded", resource=self.resource)
+
     def _check_envelope(self, message: Any, what: str) -> None:
         if message.schema != SCHEMA:
             raise self._schema_error(what, message.schema)

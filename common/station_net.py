@@ -38,7 +38,8 @@ def station_zenoh_config(config: StationConfig, model: Model, identity: Identity
     if tls is not None:
         where = f"{config.path}: {identity.role} {identity.name}"
         listen, connect = tls_endpoints(listen, where), tls_endpoints(connect, where)
-    return zenoh_config(network.mode, listen, connect, network.lease_ms, tls=tls)
+    return zenoh_config(network.mode, listen, connect, network.lease_ms, tls=tls,
+                        max_message_bytes=network.max_message_bytes)
 
 
 def security_banner(config: StationConfig) -> str:

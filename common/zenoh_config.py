@@ -20,6 +20,9 @@ from typing import Any, Literal, Protocol
 import zenoh
 
 DEFAULT_LEASE_MS = 2000
+# The largest message a process accepts on its links (zenoh's default is 1 GiB); a larger one is
+# dropped by zenoh before it reaches Python. Far above any statehub message (a command is under 1 KB).
+DEFAULT_MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 # Keep-alives per lease period. 4 is zenoh's default; with a 2 s lease a keep-alive
 # goes out every 500 ms, so one lost keep-alive never expires a healthy link.
 KEEP_ALIVES_PER_LEASE = 4
@@ -64,11 +67,12 @@ class NetworkSettings(Protocol):
     listen: Sequence[str]
     connect: Sequence[str]
     lease_ms: int
+    max_message_bytes: int
 
 
 def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect: Iterable[str] = (),
                  lease_ms: int = DEFAULT_LEASE_MS, *, gossip: bool = True,
-                 tls: TlsSettings | None = None) -> ZenohConfig:
+                 tls: TlsSettings | None = None, max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> ZenohConfig:
     """A zenoh config for a statehub process.
 
     * `mode`: "peer" (direct links on loopback or the station LAN; the controller
@@ -100,6 +104,7 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
         "scouting/gossip/enabled": gossip and mode == "peer",
         "transport/link/tx/lease": lease_ms,
         "transport/link/tx/keep_alive": KEEP_ALIVES_PER_LEASE,
+        "transport/link/rx/max_message_size": max_message_bytes,
         # Keep retrying a connect endpoint in the background (a hub may boot before the
         # controller); a client's open() still fails without a router, which ZenohBus retries.
         "connect/exit_on_failure": False,
@@ -117,7 +122,8 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
 
 
 def zenoh_config_for(network: NetworkSettings) -> ZenohConfig:
-    return zenoh_config(network.mode, network.listen, network.connect, network.lease_ms)
+    return zenoh_config(network.mode, network.listen, network.connect, network.lease_ms,
+                        max_message_bytes=network.max_message_bytes)
 
 
 def loopback_endpoint(port: int) -> str:

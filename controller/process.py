@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -67,11 +68,17 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
 
 def serve(args: argparse.Namespace) -> int:
     """Run the controller the options of `add_arguments` describe, until SIGINT or SIGTERM."""
+    from .holder import EXIT_CONFLICT, ControllerConflict
+
     setup_logging("controller", args.verbose)
     record = None if args.no_record else RunMeta(mode=args.run_mode, seed=args.run_seed)
-    return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db, fresh=args.fresh,
-                                      mirror_wait_s=args.mirror_wait, hold=args.hold, certs=args.certs,
-                                      record=record))
+    try:
+        return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db,
+                                          fresh=args.fresh, mirror_wait_s=args.mirror_wait, hold=args.hold,
+                                          certs=args.certs, record=record))
+    except ControllerConflict as exc:
+        print(f"controller: {exc}", file=sys.stderr)
+        return EXIT_CONFLICT
 
 
 def main(argv: Sequence[str] | None = None) -> int:

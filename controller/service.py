@@ -19,9 +19,11 @@ import logging
 import time
 import uuid
 from collections.abc import Iterable
+from typing import Any
 
 import msgspec
 
+from common.badpayload import BadPayloads
 from common.bus import Bus, Sample
 from common.config import StationConfig
 from common.ctl import (
@@ -43,6 +45,7 @@ from common.sdnotify import Notifier
 
 from .control import PlanRequest
 from .hold import CommandHold
+from .holder import StationHold
 from .planner import NoPlan, Plan
 from .planworker import PlannerProcess
 from .recorder import RunRecorder, StepClock, open_recording
@@ -102,6 +105,7 @@ class ControllerService:
         self.clock = StepClock()  # the core's: one reading per step, what the recording and a replay use
         self.core = stack.control_core(self.clock)
         self.store = StateStore(db or config.controller.db)
+        self.station_hold = StationHold(bus, self.keys, self.store, self.controller_id)
         self.hubs_of = {r: hub.name for r, hub in config.resources.items()}
         self.watchdog = Watchdog(self.hubs_of, stale_after=config.controller.stale_after_s,
                                  mirror_bound=config.controller.mirror_timeout_s)
@@ -125,7 +129,7 @@ class ControllerService:
         self._dirty = asyncio.Event()
         self._status_due = True
         self._last_persisted: dict[int, Value] = {}
-        self._mismatch_logged: set[str] = set()
+        self._bad_states = BadPayloads(log, "dropped state")
         self._planning: asyncio.Task[None] | None = None  # until the request under way has its first answer
         self._solving: set[asyncio.Task[None]] = set()  # requests whose answers are still coming
         # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
@@ -164,6 +168,7 @@ class ControllerService:
 
     # --- the loop -------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
+        await self.station_hold.acquire()  # raises ControllerConflict, naming the holder, before anything is sent
         self._restore()
         # The model, the compiled guards and the planner's tables live as long as the process: kept out
         # of the collector's full passes, which paused the loop for 25-270 ms at 750 resources.
@@ -171,6 +176,7 @@ class ControllerService:
         tasks = [
             asyncio.create_task(self._ingest_states(), name="states"),
             asyncio.create_task(self._watch_hubs(), name="liveliness"),
+            asyncio.create_task(self.station_hold.watch(stop), name="holder"),
         ]
         try:
             await self._take_mirrors()
@@ -193,8 +199,11 @@ class ControllerService:
                 task.cancel()
             if self.planner_process is not None:
                 self.planner_process.close()
+            self.station_hold.release()
             self.store.close()
             self.recorder.finish("finished" if self.core.all_finished() else "stopped")
+        if self.station_hold.lost is not None:
+            raise self.station_hold.lost
 
     async def _ingest_states(self) -> None:
         # In batches: at hundreds of resources at 50 Hz, a loop wake-up, a core update and a tick
@@ -215,7 +224,7 @@ class ControllerService:
                       routes: dict[str, tuple[str, Codec, tuple[tuple[str, str], ...]]]) -> None:
         """Decode a batch (newest state per resource), feed the watchdog, and merge the measured
         values into the core's state at once. A state that cannot be decoded is dropped (logged
-        once per resource); the rest of the batch is ingested."""
+        at most once per key and interval, with a count); the rest of the batch is ingested."""
         watchdog, mirrors, controller_id = self.watchdog, self.mirrors, self.controller_id
         measured: dict[str, Value] = {}
         published: list[float] = []
@@ -228,13 +237,14 @@ class ControllerService:
             try:
                 state = codec.decode_state(sample.payload)
             except MessageError as exc:
-                if resource not in self._mismatch_logged:
-                    log.warning("dropped state on %s: %s", sample.key, exc)
-                    self._mismatch_logged.add(resource)
+                self._bad_states.report("an unknown sender", sample.key, str(exc))
                 continue
             published.append(state.time)
             mirror = state.mirror
             mirrored_seq = mirror.seq if mirror is not None and mirror.controller == controller_id else None
+            if mirrored_seq is not None and mirrored_seq > self.command_seq.get(resource, -1):
+                self._forged(resource, mirror)
+                mirrored_seq = None  # not a command this controller sent
             if resource not in mirrors:
                 if mirror is not None:
                     mirrors[resource] = codec.values(mirror)
@@ -255,6 +265,12 @@ class ControllerService:
         self.recorder.ingested(changed, hub_states)
         now = time.time()  # ingested now, when the core holds them: the age includes decoding the batch
         self.meter.ages.extend(now - t for t in published)
+
+    def _forged(self, resource: str, mirror: Any) -> None:
+        """A mirror of a command in our name with a seq we never sent: forged, and it holds back ours."""
+        if mirror.epoch == self.station_hold.epoch:  # once per epoch: the new one's commands replace it at once
+            self.station_hold.renew(f"{resource}: the hub mirrors seq {mirror.seq} of this controller, which "
+                                    f"sent {self.command_seq.get(resource)} at most: a forged command")
 
     async def _watch_hubs(self) -> None:
         async for event in self.bus.watch_liveliness(self.keys.all_alive):
@@ -328,7 +344,7 @@ class ControllerService:
         seq = self.command_seq[resource]
         if previous != current:
             self.recorder.command(resource, seq)
-        message = codec.command(values, seq=seq, controller=self.controller_id)
+        message = codec.command(values, seq=seq, controller=self.controller_id, epoch=self.station_hold.epoch)
         self.bus.publish(self.keys.cmd(resource), codec.encode_command(message))
         self.watchdog.command_sent(resource, seq)
 

@@ -1,14 +1,16 @@
 """The generic stateless hub: commands in, outputs written, inputs read, state and mirror out.
 
 A hub serves the resources of one ECU. For each one it applies the newest valid
-command and mirrors it, publishes the measured state at its rate and at once when a
-command is applied, rejects commands outside the model's domains (and says so in its
-status), has the driver enter its safe state when no command arrived within the command
-timeout (and mirrors the command values the driver says it applied), and reports a
-device that does not answer. It keeps no control state: a restarted hub starts in the
-safe state and takes the next command the controller re-sends. It never knows whether
-a driver is emulated, simulated or real; a driver that needs other resources' values
-declares it (`Inputs`, `Observes`).
+command of the station's holder (hubs/authority.py) and mirrors it, publishes the
+measured state at its rate and at once when a command is applied, rejects commands
+outside the model's domains (and says so in its status), has the driver enter its safe
+state when no command arrived within the command timeout (and mirrors the command values
+the driver says it applied), and reports a device that does not answer. It keeps no
+control state: a restarted hub starts in the safe state and takes the next command the
+controller re-sends. It never knows whether a driver is emulated, simulated or real; a
+driver that needs other resources' values declares it (`Inputs`, `Observes`). On
+SIGTERM, or when one of its tasks crashes, every driver enters its safe state before
+the hub exits (hubs/shutdown.py).
 """
 
 from __future__ import annotations
@@ -30,8 +32,10 @@ from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMi
 from common.model import Kind, Model, Value
 from common.sdnotify import Notifier
 
+from .authority import Authority
 from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from .selftest import SelftestMessage, report_message
+from .shutdown import safe_state_on_exit, wait_for_stop_or_crash
 
 log = logging.getLogger("statehub.hub")
 
@@ -63,6 +67,7 @@ class HubRuntime:
         self.command_timeout = command_timeout_s
         self.slots = {name: ResourceSlot(name, d, Codec(model.resource_by_name[name])) for name, d in drivers.items()}
         self.selftest_reports: list[SelftestReport] = []
+        self.authority = Authority(hub, self.keys)
         self._tasks: list[asyncio.Task[None]] = []
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
 
@@ -74,27 +79,23 @@ class HubRuntime:
         try:
             await self._start_in_safe_state()
             self.notifier.ready()
-            self._tasks = [asyncio.create_task(self._commands(slot), name=f"commands {slot.name}")
-                           for slot in self.slots.values()]
+            self._tasks = [asyncio.create_task(self.authority.follow(self.bus), name="holder")]
+            self._tasks += [asyncio.create_task(self._commands(slot), name=f"commands {slot.name}")
+                            for slot in self.slots.values()]
             self._tasks += [asyncio.create_task(self._external_inputs(), name="inputs")]
             self._tasks.append(asyncio.create_task(self._selftest(), name="selftest"))
-            publisher = asyncio.create_task(self._publish_loop(), name="publish")
-            self._tasks.append(publisher)
+            self._tasks.append(asyncio.create_task(self._publish_loop(), name="publish"))
             # The publish loop sleeps between periods instead of waiting on `stop` (a task and a
-            # timeout every 20 ms); stopping cancels it. A crash of the loop ends the hub with it.
-            stopped = asyncio.create_task(stop.wait(), name="stop")
-            try:
-                await asyncio.wait((publisher, stopped), return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                stopped.cancel()
-            if publisher.done():
-                publisher.result()
+            # timeout every 20 ms); stopping cancels it. A crash of any task ends the hub.
+            await wait_for_stop_or_crash(stop, self._tasks)
         finally:
             for task in self._tasks:
                 task.cancel()
             for task in self._tasks:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await task
+            # Stopped or crashed: no output may stay as the last command left it.
+            await safe_state_on_exit(self.hub, [slot.driver for slot in self.slots.values()])
             token.undeclare()
             for slot in self.slots.values():
                 with contextlib.suppress(Exception):
@@ -129,20 +130,16 @@ class HubRuntime:
     # --- commands -------------------------------------------------------------------------
     async def _commands(self, slot: ResourceSlot) -> None:
         async for sample in self.bus.subscribe(self.keys.cmd(slot.name)):
+            await asyncio.sleep(0)  # a flood of commands must not starve the publish loop
             try:
-                command = slot.codec.decode_command(sample.payload)
+                command = self.authority.decode(slot.codec, sample)  # None: dropped (logged)
             except (DomainError, ModelMismatch) as exc:
-                # Nothing of it is applied: the mirror stays the last applied command. The status says
-                # whose command was refused, so that a controller can tell another's from its own.
-                sender = _sender(exc)
-                log.warning("hub %s: rejected command%s on %s: %s", self.hub, sender, sample.key, exc)
-                slot.status, slot.detail = HubStatus.REJECTED, f"command{sender} refused: {exc}"
+                # The holder's, but nothing of it is applied: the mirror stays the last applied command.
+                # The status says whose command was refused.
+                slot.status, slot.detail = HubStatus.REJECTED, f"command{_sender(exc)} refused: {exc}"
                 self._publish(slot)
                 continue
-            except MessageError as exc:
-                log.warning("hub %s: dropped malformed command on %s: %s", self.hub, sample.key, exc)
-                continue
-            if self._is_older(slot, command):
+            if command is None or self._is_older(slot, command):
                 continue
             values = slot.codec.values(command)
             try:
@@ -163,11 +160,12 @@ class HubRuntime:
             self._publish(slot)
 
     @staticmethod
-    def _is_older(slot: ResourceSlot, command: msgspec.Struct) -> bool:
-        mirror = slot.mirror
-        if mirror is None or mirror.controller != command.controller:  # type: ignore[attr-defined]
+    def _is_older(slot: ResourceSlot, command: Any) -> bool:
+        # Ordered per (controller, epoch): a new holder's first command is never older.
+        mirror: Any = slot.mirror
+        if mirror is None or (mirror.controller, mirror.epoch) != (command.controller, command.epoch):
             return False
-        return command.seq < mirror.seq  # type: ignore[attr-defined]
+        return bool(command.seq < mirror.seq)
 
     async def _drive_safe_state(self, slot: ResourceSlot, status: HubStatus, detail: str) -> None:
         # The driver stops and drives what it calls safe; nothing else is written (re-writing the last
@@ -186,7 +184,8 @@ class HubRuntime:
             mirror: Any = slot.mirror
             try:  # checked like a command: a driver's slip must not put a value outside its domain on the wire
                 slot.mirror = slot.codec.command({**slot.codec.values(mirror), **applied}, seq=mirror.seq,
-                                                 controller=mirror.controller, time=mirror.time)
+                                                 controller=mirror.controller, epoch=mirror.epoch,
+                                                 time=mirror.time)
             except MessageError as exc:
                 log.error("hub %s: the safe state of %s applied what is no command: %s", self.hub, slot.name, exc)
                 slot.in_safe_state = True  # it did stop; only its report is wrong

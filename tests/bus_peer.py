@@ -9,6 +9,8 @@ Roles:
   echo PREFIX             republish every sample of PREFIX/ping/* on PREFIX/pong/*
   burst PREFIX N          publish 0..N-1 on PREFIX/data/a and PREFIX/data/b, then PREFIX/done
   queryable PREFIX        answer queries on PREFIX/q/** with "<key>|<parameters>|<payload>"
+  flood PREFIX KEY N SIZE put N garbage payloads of SIZE bytes on KEY (a rogue peer), print `sent`;
+                          PREFIX/parent is not waited for: the peer is linked once a hub's token shows
 """
 
 from __future__ import annotations
@@ -56,6 +58,19 @@ async def main(role: str, endpoint: str, prefix: str, *args: str) -> None:
                 bus.publish(f"{prefix}/data/a", str(i).encode(), block=True)
                 bus.publish(f"{prefix}/data/b", str(i).encode(), block=True)
             bus.publish(f"{prefix}/done", b"done", block=True)
+            say("sent")
+            await asyncio.Event().wait()
+        elif role == "flood":
+            key, count, size = args[0], int(args[1]), int(args[2])
+            async with bus.watch_liveliness(f"{prefix}/hub/*/alive") as hubs:
+                await hubs.get()
+            say("ready")
+            chunk = bytes(range(256)) * (size // 256 + 1)
+            for i in range(count):
+                # block=True: every payload reaches the hub (dropping them would test nothing).
+                bus.publish(key, (i.to_bytes(4, "big") + chunk)[:size], block=True)
+                if i % 100 == 0:
+                    await asyncio.sleep(0)
             say("sent")
             await asyncio.Event().wait()
         elif role == "queryable":

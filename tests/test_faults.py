@@ -319,10 +319,12 @@ def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station
     ops = op_states(station.watch.status())
 
     published = flood(station, strategy, examples=100, spacing=0.01)
-    # Out-of-domain commands for each resource, deterministically: the hub rejects them and says so.
+    # Out-of-domain commands for each resource in the holder's name (another's are not even decoded),
+    # deterministically: the hub rejects them and says so.
+    holder = {"controller": baseline_cmd["nr"].controller, "epoch": baseline_cmd["nr"].epoch}
     for resource, raw, shown in (
-            ("nr", with_changes(message_samples(station)["cmd"][0], run_c=7, seq=10**6), "nr.run_c = 7 "),
-            ("ur", with_changes(message_samples(station)["cmd"][1], ref_pos_c="on_the_moon", seq=10**6),
+            ("nr", with_changes(message_samples(station)["cmd"][0], run_c=7, seq=10**6, **holder), "nr.run_c = 7 "),
+            ("ur", with_changes(message_samples(station)["cmd"][1], ref_pos_c="on_the_moon", seq=10**6, **holder),
              "ur.ref_pos_c = 'on_the_moon' ")):
         sent_at = time.monotonic()
         station.watch.publish(station.keys.cmd(resource), raw)

@@ -17,8 +17,9 @@ from hub_process import HubProcess
 
 from common.bus import Bus
 from common.config import load_station
+from common.holder import declare_holder
 from common.keys import station_keys
-from common.messages import Codec, HubStatus, decode
+from common.messages import SCHEMA, Codec, HubStatus, decode
 from common.process import free_port
 from common.selftest import SelftestMessage
 from common.zenoh_config import zenoh_config
@@ -61,6 +62,7 @@ async def hub(hub_process: Callable[..., HubProcess]) -> AsyncIterator[HubUnderT
     config, _ = load_station(CONFIG)
     listen = [f"tcp/127.0.0.1:{port}"]
     async with ZenohBus(zenoh_config("peer", listen=listen, lease_ms=config.network.lease_ms)) as bus:
+        declare_holder(bus, config.keys, "test-controller")  # the hub applies the holder's commands only
         alive = bus.watch_liveliness(config.keys.alive("pi-tool"))
         process = hub_process(CONFIG, "pi-tool", port, "--speed", "4")
         event = await asyncio.wait_for(alive.get(), 15)
@@ -89,7 +91,7 @@ async def test_commands_are_applied_mirrored_and_drive_the_device(hub: HubUnderT
 async def test_out_of_domain_and_garbage_commands_change_nothing(hub: HubUnderTest) -> None:
     hub.command(5, False)
     await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 5)
-    raw = msgspec.msgpack.encode({"schema": 1, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 6,
+    raw = msgspec.msgpack.encode({"schema": SCHEMA, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 6,
                                   "controller": "test-controller", "time": time.time()})
     hub.bus.publish(hub.keys.cmd("nr"), raw)
     rejected = await hub.state_where(lambda s: s.status == HubStatus.REJECTED)
@@ -102,17 +104,26 @@ async def test_out_of_domain_and_garbage_commands_change_nothing(hub: HubUnderTe
     assert after.mirror.seq == 5 and after.run_m is False
 
 
-async def test_another_controllers_refused_command_is_reported_and_cleared_by_ours(hub: HubUnderTest) -> None:
+async def test_another_controllers_command_changes_nothing_and_the_holders_refused_one_is_reported(
+        hub: HubUnderTest) -> None:
     hub.command(5, False)
     await hub.state_where(lambda s: s.mirror is not None and s.mirror.seq == 5)
-    raw = msgspec.msgpack.encode({"schema": 1, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 99,
-                                  "controller": "intruder", "time": time.time()})
+    intruder = hub.codec.command({"run_c": True}, seq=99, controller="intruder")
+    hub.bus.publish(hub.keys.cmd("nr"), hub.codec.encode_command(intruder))
+    await asyncio.sleep(0.3)
+    # Not the holder's: dropped before it is decoded; no output, mirror or status of it.
+    after = await hub.state_where(lambda s: True)
+    assert after.status == HubStatus.OK and after.mirror.seq == 5 and after.mirror.run_c is False
+    assert after.run_m is False
+    assert "ignored command on engine_assembly/res/nr/cmd from intruder (epoch 0): not the station's holder " \
+           "(held by controller test-controller" in hub.process.log.read_text()
+    # The holder's out-of-domain command: refused and said so, naming it; nothing of it applied.
+    raw = msgspec.msgpack.encode({"schema": SCHEMA, "model_hash": hub.codec.model_hash, "run_c": 3, "seq": 99,
+                                  "controller": "test-controller", "time": time.time()})
     hub.bus.publish(hub.keys.cmd("nr"), raw)
-    # Refused and said so, naming whose command it was; nothing of it applied.
     rejected = await hub.state_where(lambda s: s.status == HubStatus.REJECTED)
-    assert "seq 99 from intruder" in rejected.detail and "run_c" in rejected.detail
-    assert rejected.mirror.seq == 5 and rejected.mirror.controller == "test-controller"
-    assert rejected.mirror.run_c is False and rejected.run_m is False
+    assert "seq 99 from test-controller" in rejected.detail and "run_c" in rejected.detail
+    assert rejected.mirror.seq == 5 and rejected.mirror.run_c is False and rejected.run_m is False
     # Our controller's next re-send is applied again and clears the status at once.
     hub.command(5, False)
     cleared = await hub.state_where(lambda s: s.status != HubStatus.REJECTED)

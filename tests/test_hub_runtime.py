@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from common.bus import Sample, Subscription
+from common.holder import declare_holder
 from common.keys import station_keys
 from common.membus import MemoryBus, MemoryHub
 from common.messages import Codec, HubStatus
@@ -99,6 +100,7 @@ class Hub:
 
     async def __aenter__(self) -> Hub:
         await self.bus.open()
+        self.holder = declare_holder(self.bus, self.keys, "test")  # the hub applies the holder's commands only
         self.task = asyncio.create_task(self.runtime.run(self.stop))
         for resource in self.runtime.slots:  # serving: a command sent from now on is received
             await self.state_where(resource, lambda _state: True)

@@ -232,7 +232,7 @@ async def test_garbage_on_a_state_key_is_logged_and_dropped_and_changes_no_outpu
             await asyncio.sleep(0.05)
         await station.wait_for(lambda: len(station.statuses) > statuses_before + 2, "statuses after the garbage")
     dropped = [r.getMessage() for r in caplog.records if "dropped state" in r.getMessage()]
-    assert len(dropped) == 1 and station.keys.state("nr") in dropped[0], dropped  # logged once per resource
+    assert len(dropped) == 1 and station.keys.state("nr") in dropped[0], dropped  # logged once per key and interval
     # It re-sends the very same commands (no new seq), and nothing became unhealthy.
     assert station.last_commands() == commands_before
     assert station.all_healthy(), station.health()

@@ -1,12 +1,12 @@
 """The Zenoh side of a model-based test: commands to one resource's hub, its states back.
 
-It talks to the hub exactly as the controller does: Codec commands with a sequence
-number and a controller id on `{station}/res/{r}/cmd`, sent at once and re-sent at the
-command rate; it reads every state sample on `{station}/res/{r}/state` (in order, none
-coalesced), and follows the other resources the model's guards read (their states and
-commands, newest only). Hypothesis runs test functions synchronously, so the `Bus` lives
-on its own event loop in a background thread (`BusThread`) and `ResourceLink` offers a
-thread-safe, blocking API.
+It talks to the hub exactly as the controller does: it holds the station (a holder token,
+epoch 0) and sends Codec commands with a sequence number and a controller id on
+`{station}/res/{r}/cmd`, sent at once and re-sent at the command rate; it reads every
+state sample on `{station}/res/{r}/state` (in order, none coalesced), and follows the
+other resources the model's guards read (their states and commands, newest only).
+Hypothesis runs test functions synchronously, so the `Bus` lives on its own event loop
+in a background thread (`BusThread`) and `ResourceLink` offers a thread-safe, blocking API.
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ from collections.abc import Coroutine, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from common.bus import Bus, Subscription
+from common.bus import Bus, Subscription, Token
 from common.ctl import StatusMessage
+from common.holder import declare_holder
 from common.keys import Keys, station_keys
 from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
 from common.model import Kind, Model, Value
@@ -177,6 +178,7 @@ class ResourceLink:
         _OWN_IDS.add(self.controller_id)
         self._subscriptions: list[Subscription[Any]] = []
         self._tasks: list[asyncio.Task[None]] = []
+        self._holder: Token | None = None
 
     # --- lifecycle ----------------------------------------------------------------------------
     def open(self) -> ResourceLink:
@@ -186,6 +188,7 @@ class ResourceLink:
     async def _open(self) -> None:
         bus = self.bus.bus
         name = self.resource.name
+        self._holder = declare_holder(bus, self.keys, self.controller_id)  # hubs apply the holder's commands only
         self._watch(bus.subscribe(self.keys.state(name), coalesce=False), self._on_state)
         self._watch(bus.subscribe(self.keys.cmd(name), coalesce=False), self._on_own_command)
         self._watch(bus.subscribe(self.keys.ctl("status")), self._on_status)
@@ -223,6 +226,8 @@ class ResourceLink:
                 task.cancel()
             for subscription in self._subscriptions:
                 subscription.close()
+            if self._holder is not None:
+                self._holder.undeclare()
 
         with contextlib.suppress(Exception):
             self.bus.call(stop(), timeout=5.0)

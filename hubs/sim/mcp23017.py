@@ -268,9 +268,12 @@ class NutrunnerStation:
         fail_probability: float = 0.0,
         seed: int = 0,
         clock: Clock = time.monotonic,
+        trace: str = "",
     ) -> None:
         self.wiring = wiring or Wiring()
         self.clock = clock
+        self.trace = trace  # a file that gets a line `<unix time> <run level>` at each change of the run output
+        self._traced: bool | None = None
         self.tool = NutrunnerSim(timing, fail_probability, seed)
         self.chip = Mcp23017Sim(self._drive)
 
@@ -288,6 +291,11 @@ class NutrunnerStation:
     def tick(self) -> None:
         level = self.chip.output_level(*self.wiring.run)
         self.tool.update(self.clock(), bool(level))  # an unconfigured (input) pin does not run the tool
+        if self.trace and bool(level) != self._traced:
+            self._traced = bool(level)
+            # Outlives the hub's process: what a test reads after SIGTERM (the output as the tool saw it).
+            with open(self.trace, "a", encoding="ascii") as file:
+                file.write(f"{time.time():.6f} {int(bool(level))}\n")
 
 
 class SimI2CBus:
@@ -402,12 +410,13 @@ class NutrunnerSimParams(driver.NutrunnerParams, frozen=True, kw_only=True):
     sim_spinup: NonNegative = 0.05
     sim_tighten: NonNegative = 0.25
     sim_reset: NonNegative = 0.02
+    sim_trace: str = ""  # file traced with every change of the run output (tests)
 
 
 def _build(resource: str, params: NutrunnerSimParams) -> Driver:
     ensure_nutrunner(params.bus, params.address, wiring=Wiring(**dataclasses.asdict(params.pins())),
                      timing=NutrunnerTiming(params.sim_spinup, params.sim_tighten, params.sim_reset),
-                     fail_probability=params.sim_fail_probability, seed=params.sim_seed)
+                     fail_probability=params.sim_fail_probability, seed=params.sim_seed, trace=params.sim_trace)
     return driver.build(resource, params, bus_factory=sim_bus(params.bus).open)
 
 

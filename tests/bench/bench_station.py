@@ -52,6 +52,7 @@ sys.path.insert(0, str(HERE))
 
 from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
+from common.holder import declare_holder  # noqa: E402
 from common.keys import station_keys  # noqa: E402
 from common.process import free_port  # noqa: E402
 from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
@@ -262,6 +263,7 @@ async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> 
     async with ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"])) as bus:
         states = bus.subscribe(keys.state("nr"), coalesce=False, maxlen=None)
         alive = bus.watch_liveliness(keys.alive("pi-tool"))
+        declare_holder(bus, keys, "bench")  # the hub applies the holder's commands only
         hub = subprocess.Popen([sys.executable, "-m", "hubs", "pi-tool", "--config", str(config_path),
                                 "--loopback-port", str(port)], cwd=ROOT, env=ENV, stdout=log, stderr=subprocess.STDOUT)
         try:

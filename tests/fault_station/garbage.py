@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from common.ctl import StateSnapshot
-from common.messages import Codec, encode
+from common.messages import SCHEMA, Codec, encode
 from hubs.selftest import report_message
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES
@@ -75,7 +75,8 @@ def payload_strategy(station: Station) -> st.SearchStrategy[tuple[str, bytes]]:
         lambda p: st.integers(0, max(0, len(p) - 1)).map(lambda n: p[:n]))
     other_model = st.sampled_from(samples["cmd"] + samples["state"]).map(other_model_payload)
     other_schema = st.sampled_from(every_message).flatmap(
-        lambda p: st.sampled_from([0, 2, 99, -1, "1", None]).map(lambda v: with_changes(p, schema=v)))
+        lambda p: st.sampled_from([0, SCHEMA - 1, SCHEMA + 1, 99, -1, "1", None]).map(
+            lambda v: with_changes(p, schema=v)))
     out_of_domain = st.one_of(
         st.one_of(ints, st.text(max_size=10), st.none(), st.floats()).map(lambda v: with_changes(nr_cmd, run_c=v)),
         st.one_of(st.text(max_size=12).filter(lambda t: t not in ("home", *BOLT_POSES.values())), ints,

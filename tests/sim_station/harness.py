@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from common.config import load_station
+from common.holder import declare_holder
 from common.messages import Codec, MessageError
 from common.model import Value
 from common.process import free_port
@@ -33,6 +34,7 @@ from deploy.local.simworld import SimWorld
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND_PERIOD_S = 0.1
+SIM_TEST = "sim-test"  # the controller id this harness commands the hubs as
 
 
 class SimCell:
@@ -59,6 +61,7 @@ class SimCell:
         self._bus = ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{self.port}"],
                                           lease_ms=self.config.network.lease_ms))
         await self._bus.open()
+        declare_holder(self._bus, self.keys, SIM_TEST)  # the hubs apply the holder's commands only
         self._tasks = [asyncio.create_task(self._record()), asyncio.create_task(self._send_commands())]
         self.world = SimWorld(self.config, self.model, self.run_dir / "sim", speed=self.speed,
                               loopback_port=self.port, say=lambda _line: None)
@@ -115,7 +118,7 @@ class SimCell:
         assert self._bus is not None
         self._seq += 1
         codec = self.codecs[resource]
-        message = codec.command(self.commands[resource], seq=self._seq, controller="sim-test")
+        message = codec.command(self.commands[resource], seq=self._seq, controller=SIM_TEST)
         self._bus.publish(self.keys.cmd(resource), codec.encode_command(message))
 
     async def _send_commands(self) -> None:
