@@ -64,12 +64,12 @@ from __future__ import annotations
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 
+from common.configerrors import ConfigError, ConfigProblem, toml_problem, toml_type
 from common.hostnames import host_problem, user_problem
 from common.keylines import KeyLines
 from common.keys import Keys, station_keys
@@ -211,40 +211,6 @@ class StationConfig(msgspec.Struct, frozen=True):
             raise ConfigError([ConfigProblem(self.path, line, "station.model", str(exc))]) from exc
 
 
-# --- errors -------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class ConfigProblem:
-    file: str
-    line: int | None
-    key: str
-    message: str
-
-    def __str__(self) -> str:
-        where = f"{self.file}:{self.line}" if self.line else self.file
-        return f"{where}: {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
-
-
-class ConfigError(ValueError):
-    """One or more problems in a deployment file, each with file, line and key."""
-
-    def __init__(self, problems: list[ConfigProblem]) -> None:
-        self.problems = problems
-        if len(problems) == 1:
-            text = str(problems[0])
-        else:
-            text = f"{len(problems)} problems:\n" + "\n".join(f"  {p}" for p in problems)
-        super().__init__(text)
-
-    @property
-    def line(self) -> int | None:
-        return self.problems[0].line
-
-    @property
-    def key(self) -> str:
-        return self.problems[0].key
-
-
 # --- loading -------------------------------------------------------------------------------
 
 S = TypeVar("S", bound=msgspec.Struct)
@@ -270,7 +236,7 @@ class _Checker:
     def table(self, value: object, path: tuple[str, ...]) -> dict[str, Any] | None:
         if isinstance(value, dict):
             return value
-        self.problem(path, f"must be a table, not {_toml_type(value)}")
+        self.problem(path, f"must be a table, not {toml_type(value)}")
         return None
 
     def section(self, cls: type[S], table: Mapping[str, Any], path: tuple[str, ...], *,
@@ -311,17 +277,12 @@ class _Checker:
         return cls(**values) if ok else None
 
 
-def _toml_type(value: object) -> str:
-    return {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
-            dict: "a table"}.get(type(value), type(value).__name__)
-
-
 def _explain_type(exc: msgspec.ValidationError, value: object, ftype: object, key: str) -> str:
     if key == "mode" and isinstance(value, str):
         allowed = NETWORK_MODES if "peer" in str(ftype) else SECURITY_MODES if "tls" in str(ftype) else DEVICE_MODES
         return f"unknown mode {value!r} (expected one of: {', '.join(allowed)})"
     text = re.sub(r"\s*- at `\$[^`]*`", "", str(exc))
-    return f"{text} (found {_toml_type(value)} {value!r})"
+    return f"{text} (found {toml_type(value)} {value!r})"
 
 
 def load_config(path: str | Path, *, model: Model | None = None) -> StationConfig:
@@ -337,7 +298,7 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError([_toml_problem(file, str(exc))]) from None
+        raise ConfigError([toml_problem(file, str(exc))]) from None
 
     for key in data:
         if key not in ("station", "network", "controller", "hubs", "security"):
@@ -448,23 +409,6 @@ def _load_security(checker: _Checker, value: object, controller: ControllerConfi
         checker.problem(("controller", "name"), f"{controller.name!r} is also a hub's name: certificates name "
                                                 f"their holder, so the controller needs a name of its own")
     return security
-
-
-def _toml_problem(file: str, message: str) -> ConfigProblem:
-    match = re.match(r"(?P<msg>.*) \(at line (?P<line>\d+), column \d+\)$", message)
-    if not match:
-        return ConfigProblem(file, None, "", f"invalid TOML: {message}")
-    text, line = match.group("msg"), int(match.group("line"))
-    declared = re.match(r"Cannot declare \((?P<keys>.*)\) twice", text)
-    if declared:
-        keys = tuple(re.findall(r"'((?:[^'\\]|\\.)*)'", declared.group("keys")))
-        key = ".".join(keys)
-        if len(keys) == 2 and keys[0] == "hubs":
-            return ConfigProblem(file, line, key, f"duplicate hub name {keys[1]!r} (its table is declared twice)")
-        return ConfigProblem(file, line, key, "table declared twice")
-    if text == "Cannot overwrite a value":
-        return ConfigProblem(file, line, "", "a key is set twice (or a table overwrites a value)")
-    return ConfigProblem(file, line, "", f"invalid TOML: {text}")
 
 
 # --- the station model ----------------------------------------------------------------------
