@@ -17,6 +17,12 @@ import pytest
 from hub_process import HubProcess
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The end-to-end runs (marked slow) first: spread over the workers `./dev test` starts, the
+    longest then run side by side instead of one of them being the whole run's tail."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def recordings_in_a_temporary_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """Runs record by default (common/recording): the suite's go to a temporary directory, not ./var/runs

@@ -33,6 +33,9 @@ from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.registry import find_driver
 from hubs.sim.registry import find_simulator, host_port
 
+# It installs into .venv: one test at a time, in one worker (pip installs into one venv must not overlap).
+pytestmark = pytest.mark.xdist_group("venv_installs")
+
 if TYPE_CHECKING:
     from deploy.scaffold.testing import ModelTest, StationHubs
 

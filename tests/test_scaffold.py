@@ -30,6 +30,9 @@ from deploy.cli import main as hubctl
 from deploy.scaffold.device import check_same_contract
 from deploy.scaffold.files import ScaffoldError
 
+# It installs into .venv: one test at a time, in one worker (pip installs into one venv must not overlap).
+pytestmark = pytest.mark.xdist_group("venv_installs")
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -160,7 +160,7 @@ async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monk
             assert cell.trace(path, since) == expected, f"{resource} {command}: {path} went {cell.trace(path, since)}"
 
         async def move(pose: str) -> None:
-            start = cell.values["ur.pos_m"]
+            start = cell.trace("ur.pos_m")[-1]  # the last known pose: under load a read may be momentarily unknown
             await step("ur", "ur.pos_m", pose, [start, "unknown", pose], ref_pos_c=pose)
 
         await step("mir", "mir.pos_m", "at_station", ["at_kitting", "moving", "at_station"], goto_c="station")
