@@ -27,14 +27,12 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 import pytest
+from scaffold_support import venv_lock
 
 from deploy.modeltest import Options
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.registry import find_driver
 from hubs.sim.registry import find_simulator, host_port
-
-# It installs into .venv: one test at a time, in one worker (pip installs into one venv must not overlap).
-pytestmark = pytest.mark.xdist_group("venv_installs")
 
 if TYPE_CHECKING:
     from deploy.scaffold.testing import ModelTest, StationHubs
@@ -63,9 +61,10 @@ def _installed_here() -> bool:
 @pytest.fixture(scope="session")
 def pick_cell() -> Iterator[None]:
     """The example package installed (editable) into this venv; it stays installed (`./dev up` can run it)."""
-    if not _installed_here():
-        subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps",
-                        "--no-build-isolation", "-e", str(PACKAGE)], check=True, capture_output=True)
+    with venv_lock():
+        if not _installed_here():
+            subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
+                            "--no-deps", "--no-build-isolation", "-e", str(PACKAGE)], check=True, capture_output=True)
     # .pth files are read at start-up: this process imports it from the source; subprocesses as installed.
     sys.path.insert(0, str(PACKAGE))
     try:

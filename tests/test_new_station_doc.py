@@ -21,9 +21,6 @@ from pathlib import Path
 import pytest
 from scaffold_support import generated_projects_removed
 
-# It installs into .venv: one test at a time, in one worker (pip installs into one venv must not overlap).
-pytestmark = pytest.mark.xdist_group("venv_installs")
-
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "new-station.md"
 FENCE = re.compile(r"^```(?P<info>[^\n]*)\n(?P<body>.*?)^```\s*$", re.MULTILINE | re.DOTALL)

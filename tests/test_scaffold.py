@@ -22,16 +22,13 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from scaffold_support import generated_projects_removed, install
+from scaffold_support import generated_projects_removed, install, venv_lock
 
 from common.config import load_station
 from common.model import Model, Resource
 from deploy.cli import main as hubctl
 from deploy.scaffold.device import check_same_contract
 from deploy.scaffold.files import ScaffoldError
-
-# It installs into .venv: one test at a time, in one worker (pip installs into one venv must not overlap).
-pytestmark = pytest.mark.xdist_group("venv_installs")
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -41,7 +38,8 @@ def project(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """A fresh `hubctl new-station` project, importable in this process (not installed)."""
     name = "scaffold_cell"
     root = tmp_path / name
-    assert hubctl(["new-station", name, "--dir", str(root)]) == 0
+    with venv_lock():  # new-station refuses the name while another test has it installed
+        assert hubctl(["new-station", name, "--dir", str(root)]) == 0
     monkeypatch.syspath_prepend(str(root))
     yield root
     for module in [m for m in sys.modules if m == name or m.startswith(f"{name}.")]:

@@ -137,7 +137,7 @@ async def test_station_runs_to_completion_as_processes_over_zenoh(name: str, tmp
     monkeypatch.chdir(ROOT)
     lines: list[str] = []
     began = time.monotonic()
-    options = Options(config=str(example(name)), speed=2.0, run_dir=tmp_path, time_limit=55.0)
+    options = Options(config=str(example(name)), speed=2.0, run_dir=tmp_path, time_limit=180.0)
     code = await run_station(options, say=lines.append)
     output = "\n".join(lines)
     print(f"{name} over Zenoh: {time.monotonic() - began:.1f} s\n{lines[-1] if lines else ''}")

@@ -22,7 +22,7 @@ FAST = Backoff(initial=0.02, maximum=0.2)
 
 
 def params(port: int, **extra: Any) -> dict[str, Any]:
-    return {"port": port, "reconnect_min": 0.02, "reconnect_max": 0.2, "poll_interval": 0.05, "timeout": 0.5, **extra}
+    return {"port": port, "reconnect_min": 0.02, "reconnect_max": 0.2, "poll_interval": 0.05, "timeout": 2.0, **extra}
 
 
 @pytest.fixture

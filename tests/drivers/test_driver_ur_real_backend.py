@@ -48,9 +48,14 @@ def _receive_probe(conn: Connection, host: str) -> None:
     os._exit(0)
 
 
+# An address of this process's own (RTDE's port 30004 is fixed): the suite runs in several
+# processes, and a station in sim mode may have its fake on 127.0.0.2.
+HOST = f"127.{os.getpid() % 200 + 20}.0.2"
+
+
 @pytest.fixture(scope="module")
 def fake() -> Iterator[FakeUr]:
-    robot = FakeUr("127.0.0.2").start()
+    robot = FakeUr(HOST).start()
     yield robot
     robot.kill()
 
@@ -58,7 +63,7 @@ def fake() -> Iterator[FakeUr]:
 def test_rtde_receive_interface_reads_the_fake(fake: FakeUr) -> None:
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe()
-    proc = ctx.Process(target=_receive_probe, args=(child, "127.0.0.2"))
+    proc = ctx.Process(target=_receive_probe, args=(child, HOST))
     proc.start()
     assert parent.poll(15), "no answer from the probe process"
     got: dict[str, Any] = parent.recv()
