@@ -63,6 +63,7 @@ async def cpu_per_state(directory: Path, resources: int, states: int, *, record:
         batches.append([Sample(keys[(first + i) % len(keys)], payloads[flip][(first + i) % len(keys)])
                         for i in range(BATCH)])
     service._restore()
+    await service.station_hold.acquire()  # its epoch goes with every command sent
     began = time.process_time()
     for batch in batches:
         service._ingest_batch(batch, routes)
