@@ -14,6 +14,7 @@ import logging
 import sqlite3
 import time
 from collections.abc import Callable, Iterable, Mapping
+from operator import itemgetter
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Protocol
@@ -90,7 +91,11 @@ class RunRecorder:
         self.sink = sink
         compiled = core.compiled
         self._operations = tuple(core.op_index)
-        self._op_indices = tuple(core.op_index.values())
+        # After every tick: a C-level gather of the operations' values (hundreds of them at the capacity station);
+        # itemgetter of one index returns a bare value, not a tuple.
+        indices = tuple(core.op_index.values())
+        self._op_values_of: Callable[[State], tuple[Value, ...]] = itemgetter(*indices) if len(indices) > 1 \
+            else lambda state: tuple(state[i] for i in indices)
         self._op_values = self._operation_values(core.state)
         self._said = len(core.events.log)
         self._hub_states: dict[str, HubState] = {}
@@ -233,7 +238,7 @@ class RunRecorder:
             self._said = len(log)
 
     def _operation_values(self, state: State) -> tuple[Value, ...]:
-        return tuple(state[i] for i in self._op_indices)
+        return self._op_values_of(state)
 
     # --- the end ------------------------------------------------------------------------
     def finish(self, outcome: str, note: str = "") -> None:
