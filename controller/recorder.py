@@ -14,6 +14,7 @@ import logging
 import sqlite3
 import time
 from collections.abc import Callable, Iterable, Mapping
+from operator import itemgetter
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Protocol
@@ -27,6 +28,7 @@ from common.model.compiled import State
 from common.recording.schema import (
     CommandRecord,
     HoldRecord,
+    HubState,
     LivelinessRecord,
     OperationRecord,
     PlanRecord,
@@ -35,7 +37,7 @@ from common.recording.schema import (
     RequestRecord,
     RestoreRecord,
     RunMeta,
-    StateRecord,
+    StatesRecord,
     StepRecord,
     TickRecord,
     WatchdogRecord,
@@ -51,7 +53,13 @@ log = logging.getLogger("statehub.recording")
 
 TICK = msgspec.msgpack.encode(TickRecord())
 ALL_HEALTHY: Mapping[str, str] = MappingProxyType({})
-HubState = tuple[str, str, str, int | None]  # resource, status, detail, mirrored seq of ours
+
+
+class _ResourceOf(dict[str, str]):
+    """A variable path's resource, precomputed for the model's paths (ingestion's hot loop)."""
+
+    def __missing__(self, path: str) -> str:
+        return path.split(".", 1)[0]
 
 
 class StepClock:
@@ -83,10 +91,15 @@ class RunRecorder:
         self.sink = sink
         compiled = core.compiled
         self._operations = tuple(core.op_index)
-        self._op_indices = tuple(core.op_index.values())
+        # After every tick: a C-level gather of the operations' values (hundreds of them at the capacity station);
+        # itemgetter of one index returns a bare value, not a tuple.
+        indices = tuple(core.op_index.values())
+        self._op_values_of: Callable[[State], tuple[Value, ...]] = itemgetter(*indices) if len(indices) > 1 \
+            else lambda state: tuple(state[i] for i in indices)
         self._op_values = self._operation_values(core.state)
         self._said = len(core.events.log)
         self._hub_states: dict[str, HubState] = {}
+        self._resource_of = _ResourceOf({path: path.split(".", 1)[0] for path in compiled.index})
         self._unhealthy: dict[str, str] = {}
         self.command_paths = {
             r.name: [(v.path, compiled.index[v.path]) for v in r.variables if v.kind is Kind.COMMAND]
@@ -118,28 +131,24 @@ class RunRecorder:
         if self.sink is not None:
             self.sink.update_meta(requested=list(operations))
 
-    def ingested(self, changed: Mapping[str, Value], hub_states: Iterable[HubState] = ()) -> None:
-        """Measured values the core took that changed, and each sample's status and mirrored seq
-        (recorded where it differs from that resource's previous one)."""
+    def ingested(self, changed: dict[str, Value], hub_states: Iterable[HubState] = ()) -> None:
+        """Measured values the core took that changed (a dict the caller no longer touches: the writer
+        thread encodes it), and each sample's status and mirrored seq: one `states` record per batch, with
+        the hub states that changed and those of the resources whose values did."""
         if self.sink is None:
             return
         known = self._hub_states
-        touched = []
+        moved = {self._resource_of[path] for path in changed} if changed else ()
+        hubs = []
         for item in hub_states:
-            if known.get(item[0]) != item:
-                known[item[0]] = item
-                touched.append(item[0])
-        if not changed and not touched:
-            return
-        by_resource: dict[str, dict[str, Value]] = {r: {} for r in touched}
-        for path, value in changed.items():
-            by_resource.setdefault(path.split(".", 1)[0], {})[path] = value
-        t = self.clock()
-        for resource, values in by_resource.items():
-            hub = known.get(resource)
-            record = StateRecord(values=values) if hub is None else \
-                StateRecord(values=values, status=hub[1], detail=hub[2], mirror_seq=hub[3])
-            self.sink.put(t, RecordKind.STATE, resource, record)
+            resource = item[0]
+            if known.get(resource) != item:
+                known[resource] = item
+                hubs.append(item)
+            elif resource in moved:
+                hubs.append(item)
+        if changed or hubs:
+            self.sink.put(self.clock(), RecordKind.STATES, "", StatesRecord(changed, hubs))
 
     def liveliness(self, hub: str, alive: bool) -> None:
         if self.sink is not None:
@@ -229,7 +238,7 @@ class RunRecorder:
             self._said = len(log)
 
     def _operation_values(self, state: State) -> tuple[Value, ...]:
-        return tuple(state[i] for i in self._op_indices)
+        return self._op_values_of(state)
 
     # --- the end ------------------------------------------------------------------------
     def finish(self, outcome: str, note: str = "") -> None:

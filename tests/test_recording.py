@@ -13,7 +13,8 @@ from common.recording.reader import RecordingError, list_runs, open_run
 from common.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
 from common.recording.writer import RECORDING_DIR_ENV, RecordingWriter
 from common.stations import load_model
-from controller.recorder import open_recording
+from controller.recorder import RunRecorder, open_recording
+from controller.stack import build_controller_stack
 
 MB = 1024 * 1024
 FAULT_MODEL = "tests.fault_station.model:build_model"
@@ -96,6 +97,40 @@ def test_a_stuck_disk_never_blocks_put_and_what_overflows_is_counted(tmp_path: P
     with open_run(w.path) as run:
         assert run.meta.dropped == 900
         assert sum(1 for _ in run.events()) == 101
+
+
+def test_an_ingested_batch_is_one_row_read_back_as_one_state_record_per_resource(tmp_path: Path) -> None:
+    core = build_controller_stack(load_model(FAULT_MODEL)).control_core(lambda: 0.5)
+    w = writer(tmp_path)
+    recorder = RunRecorder(core, lambda: 0.5, w)
+    recorder.ingested(core.ingest({"nr.run_m": True, "ur.pos_m": "at_bolt1", "nr.tqr_m": True}),
+                      [("nr", "ok", "", 3), ("ur", "ok", "", None)])
+    recorder.ingested(core.ingest({"nr.run_m": True}), [("nr", "ok", "", 3)])  # nothing changed: no row
+    recorder.ingested(core.ingest({"nr.run_m": False}), [("nr", "ok", "", 3), ("ur", "lost", "cable", None)])
+    w.close()
+
+    with open_run(w.path) as run:
+        assert run.meta.format == 2
+        assert run._connections[0].execute("SELECT COUNT(*) FROM events").fetchone()[0] == 2
+        assert [(r.key, r.data) for r in run.events()] == [
+            ("nr", StateRecord(values={"nr.run_m": True, "nr.tqr_m": True}, status="ok", mirror_seq=3)),
+            ("ur", StateRecord(values={"ur.pos_m": "at_bolt1"}, status="ok")),
+            ("nr", StateRecord(values={"nr.run_m": False}, status="ok", mirror_seq=3)),
+            ("ur", StateRecord(status="lost", detail="cable"))]
+        assert [r.data.status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
+        assert [r.kind for r in run.events(kinds=["tick"], key="ur")] == []
+
+
+def test_a_format_1_recording_is_read_and_an_unknown_format_refused_naming_it(tmp_path: Path) -> None:
+    old = RecordingWriter(tmp_path / "old", RunMeta(format=1, started=1000.0), max_bytes=MB, keep=3)
+    old.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": True}))
+    old.close()
+    with open_run(old.path) as run:
+        assert [(r.kind, r.key) for r in run.events(key="nr")] == [(RecordKind.STATE, "nr")]
+    new = RecordingWriter(tmp_path / "new", RunMeta(format=3, started=1000.0), max_bytes=MB, keep=3)
+    new.close()
+    with pytest.raises(RecordingError, match=r"new/.*\.sqlite: recording format 3, this statehub reads formats 1, 2"):
+        open_run(new.path)
 
 
 def test_what_is_not_a_recording_is_refused_with_its_path(tmp_path: Path) -> None:

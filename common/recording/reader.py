@@ -10,7 +10,8 @@
             record.t, record.kind, record.key, record.data   # data: the kind's struct (DATA_TYPES)
 
 `events()` yields records in the order they were written (the order the controller acted in);
-`since`/`until` bound `t` (inclusive), `kinds` and `key` filter. A recording being written may be
+`since`/`until` bound `t` (inclusive), `kinds` and `key` filter. A stored `states` row (one ingested
+batch) is yielded as its `state` records, one per resource. A recording being written may be
 read at the same time (SQLite WAL): what is committed is seen.
 """
 
@@ -25,7 +26,7 @@ from types import TracebackType
 
 import msgspec
 
-from .schema import DATA_TYPES, FORMAT, SUFFIX, RecordData, RecordKind, RunMeta
+from .schema import DATA_TYPES, FORMAT, READABLE_FORMATS, SUFFIX, RecordData, RecordKind, RunMeta, expand_states
 
 
 class RecordingError(ValueError):
@@ -78,8 +79,9 @@ def _meta(connection: sqlite3.Connection, path: Path) -> RunMeta:
         meta = msgspec.convert(values, RunMeta)
     except msgspec.ValidationError as exc:
         raise RecordingError(f"{path}: run_meta: {exc}") from None
-    if meta.format != FORMAT:
-        raise RecordingError(f"{path}: recording format {meta.format}, this statehub reads format {FORMAT}")
+    if meta.format not in READABLE_FORMATS:
+        raise RecordingError(f"{path}: recording format {meta.format}, this statehub reads formats "
+                             f"{', '.join(map(str, READABLE_FORMATS))} (and writes {FORMAT})")
     return meta
 
 
@@ -110,8 +112,12 @@ class Run:
     def events(self, kinds: Iterable[RecordKind | str] | None = None, since: float | None = None,
                until: float | None = None, key: str | None = None) -> Iterator[Record]:
         where, parameters = [], []
+        states = kinds is None
         if kinds is not None:
-            chosen = [RecordKind(k) for k in kinds]
+            chosen = {RecordKind(k) for k in kinds}
+            states = RecordKind.STATE in chosen or RecordKind.STATES in chosen
+            if states:
+                chosen |= {RecordKind.STATE, RecordKind.STATES}
             where.append(f"kind IN ({', '.join('?' * len(chosen))})")
             parameters += [k.value for k in chosen]
         if since is not None:
@@ -120,8 +126,8 @@ class Run:
         if until is not None:
             where.append("t <= ?")
             parameters.append(until)
-        if key is not None:
-            where.append("key = ?")
+        if key is not None:  # a `states` row's resources are in its data: filtered once expanded
+            where.append("(key = ? OR kind = 'states')" if states else "key = ?")
             parameters.append(key)
         query = "SELECT t, kind, key, data FROM events" + (f" WHERE {' AND '.join(where)}" if where else "") \
             + " ORDER BY id"
@@ -132,7 +138,12 @@ class Run:
                     decoded = _DECODERS[record_kind].decode(data)
                 except msgspec.DecodeError as exc:
                     raise RecordingError(f"{path}: {kind} record of {record_key!r} at t={t:.3f}: {exc}") from None
-                yield Record(t, record_kind, record_key, decoded)
+                if record_kind is not RecordKind.STATES:
+                    yield Record(t, record_kind, record_key, decoded)
+                    continue
+                for resource, state in expand_states(decoded):
+                    if key is None or resource == key:
+                        yield Record(t, RecordKind.STATE, resource, state)
 
     @property
     def end_t(self) -> float:

@@ -64,6 +64,7 @@ class RecordingWriter:
         self.flush_s = flush_s
         self.queue_limit = queue_limit
         self.dropped = 0
+        self.thread_cpu_s = 0.0  # the writer thread's CPU time, once closed (what recording costs besides put)
         self.path = self.directory / run_file_name(meta)
         self.current = self.path
         self._queue: deque[tuple[Any, ...]] = deque()
@@ -116,6 +117,7 @@ class RecordingWriter:
             log.error("recording %s stopped: %s", self.current, exc)
         finally:
             self._connection.close()
+            self.thread_cpu_s = time.thread_time()
 
     def _take(self) -> list[tuple[Any, ...]]:
         queue = self._queue
