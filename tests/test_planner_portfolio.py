@@ -8,7 +8,19 @@ import subprocess
 import sys
 from pathlib import Path
 
-from common.model import Domain, Model, Phase, Resource, ability, all_of, command, measured, operation
+from common.model import (
+    Domain,
+    IsTrue,
+    Model,
+    Phase,
+    Resource,
+    ability,
+    all_of,
+    command,
+    deliberate,
+    measured,
+    operation,
+)
 from common.model.compiled import CompiledModel
 from common.stations import engine_assembly, synthetic
 from controller.planner import Budget, NoPlan, Plan, Planner, validate_plan
@@ -110,6 +122,21 @@ def test_relaxed_plan_prefers_the_moves_toward_the_goal() -> None:
     lamp_on = compiled.by_name["l.on.enabled"].number
     assert estimate.h == 2  # the command, then the lamp's effect
     assert {number for number, _ in estimate.preferred} == {lamp_on}  # not the door, not the counter
+
+
+def test_a_copy_carries_values_its_source_gains_after_the_copy_was_first_applied() -> None:
+    """Hypothesis's case, minimal: `r.y_c := r.x_c` is enabled from the start, `r.x_c` becomes true only
+    one move later. The relaxation applied the copy once, with the start's values, and so "proved" the
+    2-step goal `r.y_c` unreachable."""
+    x, y = command("r.x_c", initial=False), command("r.y_c", initial=False)
+    moves = ability("r.moves", extra=(deliberate("r.set_x", "!r.x_c", "r.x_c := true"),
+                                      deliberate("r.copy_x", "true", "r.y_c := r.x_c")))
+    compiled = CompiledModel(Model("copy", (Resource("r", (x, y), (moves,)),)))
+    goal = IsTrue("r.y_c")
+    assert RelaxedModel(StepSystem(compiled)).goal(goal).evaluate(compiled.initial()).h == 2
+    result = Planner(compiled).plan(compiled.initial(), {"y": goal}, budget=Budget())
+    assert isinstance(result, Plan), result.reason
+    assert [step.transition for step in result.steps] == ["r.set_x", "r.copy_x"]
 
 
 def test_same_seed_same_run_whatever_the_hash_seed() -> None:

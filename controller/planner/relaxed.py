@@ -205,9 +205,14 @@ class RelaxedModel:
                                          tuple(constants), tuple(copies)))
         self.actions = tuple(actions)
         self.readers: list[list[int]] = [[] for _ in compiled.paths]
+        # An applied action is never tested again, but its copies must carry every value its sources gain
+        # later, or the relaxation would under-approximate and "prove" a reachable goal unreachable.
+        self.copy_readers: list[list[int]] = [[] for _ in compiled.paths]
         for a, action in enumerate(actions):
             for i in action.reads:
                 self.readers[i].append(a)
+            for source in sorted({source for _, source in action.copies}):
+                self.copy_readers[source].append(a)
         self.wake = self._wake_functions(guards)
         self.constants: list[tuple[tuple[int, int], ...]] = [action.constants for action in actions]
         self.system = system
@@ -325,6 +330,8 @@ class RelaxedPlan:
         waiting = [-1] * len(actions)
         known = [-1] * relaxed.distinct_conjuncts
         changed: set[int] = set()
+        copy_readers = relaxed.copy_readers
+        recopy: list[int] = []  # applied actions whose copy sources gained values in the last layer
         while not goal_test(r):
             if layer:
                 # Only a guard reading a variable that gained a value can have become true.
@@ -332,7 +339,8 @@ class RelaxedPlan:
                 for i in changed:
                     wake[i](r, tested, waiting, known, layer, ready)
                 ready.sort()
-            if not ready:
+                recopy = sorted({a for i in changed for a in copy_readers[i] if a in applied})
+            if not ready and not recopy:
                 return Estimate(INF, frozenset())
             layer += 1
             gained: list[tuple[int, int]] = []
@@ -343,6 +351,7 @@ class RelaxedPlan:
                     if fact not in facts:
                         facts[fact] = (layer, a)
                         gained.append(fact)
+            for a in (*ready, *recopy):
                 for target, source in actions[a].copies:
                     for bit in self._copied(target, source, r[source]):
                         if (target, bit) not in facts:
