@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -283,6 +284,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(one_line(exc))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)
+    except BrokenPipeError:
+        # The reader went away (`hubctl timeline RUN | head`): nothing more to say, and the interpreter
+        # must not fail again flushing stdout at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except Exception as exc:
         from controller.synthesis import SynthesisError
 

@@ -61,3 +61,17 @@ def test_a_missing_config_file_or_unknown_hub_is_one_line(tmp_path: Path, capsys
     assert unknown.stderr.startswith(f"hub pi-nowhere: {CONFIG}: no hub named 'pi-nowhere' (hubs: pi-tool,")
     assert hubctl(["hub", "pi-tool", "--config", str(missing)]) == 2
     assert capsys.readouterr().err == f"hubctl: cannot read {missing}: No such file or directory\n"
+
+
+def test_a_reader_that_goes_away_ends_hubctl_quietly(tmp_path: Path) -> None:
+    """`hubctl ... | head`: the closed pipe ends hubctl with 141 (as SIGPIPE would), no traceback."""
+    import os
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        result = subprocess.run([sys.executable, "-m", "deploy.cli", "check"], cwd=ROOT, stdout=write_end,
+                                stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert (result.returncode, result.stderr) == (141, "")
