@@ -43,7 +43,6 @@ ESTIMATES_KEPT = 20_000  # estimates kept per goal
 class RelaxedAction:
     move: Move
     guard: Node
-    test: Callable[[list[int]], bool]
     reads: tuple[int, ...]
     conjuncts: tuple[Node, ...]  # the guard's top-level conjuncts
     failing: Callable[[list[int]], list[int]]  # the conjuncts that do not hold in given masks
@@ -181,8 +180,7 @@ class RelaxedModel:
                 guards[t.number] = (guard, conjuncts_of(guard))
         # Every test in one generated module: one compile instead of hundreds.
         lines = []
-        for number, (guard, conjuncts) in guards.items():
-            lines.append(f"def test_{number}(r): return {self.encoder.source(guard)}")
+        for number, (_guard, conjuncts) in guards.items():
             lines += self.encoder.failing_source(f"failing_{number}", conjuncts)
         # Layer 0 of an evaluation: the automatics whose guard holds (actions after the moves are automatics).
         lines += _listing("automatic_ready", ((len(system.moves) + k, self.encoder.source(guards[t.number][0]))
@@ -199,8 +197,7 @@ class RelaxedModel:
                 else:
                     constants.append((target, self.encoder.bit(target, action.value)))
             reads = _reads(guard, set()) | {source for _, source in copies}
-            actions.append(RelaxedAction((t.number, o), guard, namespace[f"test_{t.number}"],  # type: ignore[arg-type]
-                                         tuple(sorted(reads)), conjuncts,
+            actions.append(RelaxedAction((t.number, o), guard, tuple(sorted(reads)), conjuncts,
                                          namespace[f"failing_{t.number}"],  # type: ignore[arg-type]
                                          tuple(constants), tuple(copies)))
         self.actions = tuple(actions)
