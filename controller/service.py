@@ -47,7 +47,7 @@ from .control import PlanRequest
 from .hold import CommandHold
 from .holder import StationHold
 from .planner import NoPlan, Plan
-from .planworker import PlannerProcess
+from .planworker import READY_WAIT_S, PlannerProcess
 from .recorder import RunRecorder, StepClock, open_recording
 from .requests import Requests
 from .stack import build_controller_stack
@@ -166,6 +166,17 @@ class ControllerService:
             await asyncio.sleep(0.05)
         self.command_hold.start(self.mirrors, self.mirror_wait)
 
+    async def _planner_ready(self, stop: asyncio.Event) -> None:
+        """Plan only once the planner process has its tables (it builds them while the hubs' mirrors come):
+        a request asked earlier would wait for them, and the first plan with it."""
+        if self.planner_process is None:
+            return
+        if await self.planner_process.ready(READY_WAIT_S, stop):
+            log.info("planner ready: its tables built in %.2f s", self.planner_process.ready_seconds or 0.0)
+        elif not stop.is_set():
+            log.warning("the planner process is not ready (gone, or no tables after %.0f s): planning anyway",
+                        READY_WAIT_S)
+
     # --- the loop -------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
         await self.station_hold.acquire()  # raises ControllerConflict, naming the holder, before anything is sent
@@ -180,6 +191,7 @@ class ControllerService:
         ]
         try:
             await self._take_mirrors()
+            await self._planner_ready(stop)
             self.notifier.ready()
             tasks.append(asyncio.create_task(self._resend_commands(stop), name="resend"))
             tasks.append(asyncio.create_task(self._publish_status_loop(stop), name="status"))

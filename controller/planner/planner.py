@@ -135,6 +135,18 @@ class Planner:
             self._heuristics.popitem(last=False)
         return h
 
+    def forget_partial_work(self) -> None:
+        """After a search was interrupted at an arbitrary point (a preempted improvement): drop every table
+        such a search builds or extends in place (A*'s projections and heuristics, the symbolic member), so
+        nothing half built is used again. The step system, race answers, relaxed model and plan memory are
+        only ever replaced whole, never left half written, and stay warm."""
+        self._abstractions.clear()
+        self._heuristics.clear()
+        self._symbolic.clear()
+        # Called by the single-threaded planner worker only: a lock still held was the interrupted search's.
+        if self._lock.locked():
+            self._lock.release()
+
     def clear_cache(self) -> None:
         with self._lock:
             self._systems.clear()
