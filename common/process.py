@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import faulthandler
 import logging
 import signal
 import socket
@@ -37,11 +38,26 @@ def setup_logging(name: str, verbose: bool = False) -> None:
     logging.getLogger("zenoh").setLevel(logging.WARNING)
 
 
-def stop_on_signals() -> asyncio.Event:
+# A process asked to stop has this long to exit (its units give systemd's TimeoutStopSec=10s): then it
+# prints every thread's stack and exits 1, where systemd would SIGKILL it with no word of what hung.
+EXIT_GUARD_S = 8.0
+
+
+def stop_on_signals(exit_within: float | None = EXIT_GUARD_S) -> asyncio.Event:
+    """An event set on SIGINT or SIGTERM. From the first signal on, the process exits within
+    `exit_within` seconds whatever happens: faulthandler's watchdog is a thread of its own in C, so a
+    loop or a thread stuck in a call that never returns (a device, a lock, an executor joined at exit)
+    cannot hold the exit up, and the stacks it prints say where it hung."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+
+    def on_signal() -> None:
+        if not stop.is_set() and exit_within is not None:
+            faulthandler.dump_traceback_later(exit_within, exit=True, file=sys.stderr)
+        stop.set()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+        loop.add_signal_handler(sig, on_signal)
     return stop
 
 

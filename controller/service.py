@@ -42,6 +42,7 @@ from common.messages import Codec, HubStatus, MessageError, encode
 from common.model import Kind, Model, Value
 from common.recording.schema import RunMeta
 from common.sdnotify import Notifier
+from common.tasks import cancel_and_wait
 
 from .control import PlanRequest
 from .hold import CommandHold
@@ -59,6 +60,7 @@ log = logging.getLogger("statehub.controller")
 
 STATUS_PERIOD_S = 0.25
 STATE_SNAPSHOT_PERIOD_S = 1.0
+TASKS_END_S = 2.0  # for the loop's tasks to end once cancelled, before the state is saved and the hold released
 INGEST_BATCH_S = 0.002  # least time between two state batches: bursts join one batch
 
 
@@ -200,15 +202,8 @@ class ControllerService:
             tasks.append(asyncio.create_task(requests.serve(self.bus, self.keys.ctl("request")), name="requests"))
             await self._tick_loop(stop)
         finally:
-            for task in tasks:
-                task.cancel()
-            for task in tasks:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
-            if self._planning is not None:
-                self._planning.cancel()
-            for task in list(self._solving):
-                task.cancel()
+            planning = [self._planning] if self._planning is not None else []
+            await cancel_and_wait([*tasks, *planning, *self._solving], TASKS_END_S, log)
             if self.planner_process is not None:
                 self.planner_process.close()
             self.station_hold.release()
@@ -303,7 +298,8 @@ class ControllerService:
             meter.ticks.append(time.perf_counter() - began)
             self._dirty.clear()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._dirty.wait(), period)
+                async with asyncio.timeout(period):
+                    await self._dirty.wait()
 
     def _tick(self) -> None:
         core = self.core

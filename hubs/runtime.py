@@ -16,7 +16,6 @@ the hub exits (hubs/shutdown.py).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Mapping
@@ -31,13 +30,17 @@ from common.keys import station_keys
 from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 from common.model import Kind, Model, Value
 from common.sdnotify import Notifier
+from common.tasks import cancel_and_wait
 
 from .authority import Authority
 from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from .selftest import SelftestMessage, report_message
-from .shutdown import safe_state_on_exit, wait_for_stop_or_crash
+from .shutdown import close_drivers, safe_state_on_exit, wait_for_stop_or_crash
 
 log = logging.getLogger("statehub.hub")
+
+TASKS_END_S = 2.0  # for the hub's tasks to end once cancelled, before the safe state is driven regardless
+DRIVER_CLOSE_S = 2.0  # for the drivers to close their connections on exit
 
 
 @dataclass
@@ -89,17 +92,11 @@ class HubRuntime:
             # timeout every 20 ms); stopping cancels it. A crash of any task ends the hub.
             await wait_for_stop_or_crash(stop, self._tasks)
         finally:
-            for task in self._tasks:
-                task.cancel()
-            for task in self._tasks:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
+            await cancel_and_wait(self._tasks, TASKS_END_S, log)
             # Stopped or crashed: no output may stay as the last command left it.
             await safe_state_on_exit(self.hub, [slot.driver for slot in self.slots.values()])
             token.undeclare()
-            for slot in self.slots.values():
-                with contextlib.suppress(Exception):
-                    await slot.driver.close()
+            await close_drivers([slot.driver for slot in self.slots.values()], DRIVER_CLOSE_S)
 
     async def _start_in_safe_state(self) -> None:
         for slot in self.slots.values():

@@ -44,8 +44,25 @@ async def safe_state_on_exit(hub: str, drivers: Sequence[Driver], timeout: float
             log.exception("hub %s: could not drive the safe state of %s on exit", hub, driver.resource)
 
     try:
-        await asyncio.wait_for(asyncio.gather(*(one(d) for d in drivers)), timeout)
+        async with asyncio.timeout(timeout):
+            await asyncio.gather(*(one(d) for d in drivers))
     except TimeoutError:
         log.error("hub %s: the safe state on exit took more than %.1f s; exiting anyway", hub, timeout)
     else:
         log.info("hub %s: every output in its safe state on exit", hub)
+
+
+async def close_drivers(drivers: Sequence[Driver], timeout: float) -> None:
+    """Every driver's `close`, all at once, for at most `timeout` seconds; failures are logged at debug
+    level (the outputs are already safe: a connection that does not close cleanly changes nothing)."""
+    async def one(driver: Driver) -> None:
+        try:
+            await driver.close()
+        except Exception as exc:
+            log.debug("%s: close failed: %s", driver.resource, exc)
+
+    try:
+        async with asyncio.timeout(timeout):
+            await asyncio.gather(*(one(d) for d in drivers))
+    except TimeoutError:
+        log.warning("the drivers' connections did not all close within %.1f s; exiting anyway", timeout)

@@ -107,7 +107,8 @@ class ConsoleLink:
 
     async def request(self, request: ConsoleRequest) -> ConsoleReply:
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._opened.wait(), REQUEST_TIMEOUT_S)
+            async with asyncio.timeout(REQUEST_TIMEOUT_S):
+                await self._opened.wait()
         bus = self._bus
         if bus is None:
             return ConsoleReply(accepted=False, reason="not connected to the station's bus")

@@ -169,7 +169,8 @@ async def _stop(children: list[Child]) -> None:
     deadline = time.monotonic() + STOP_GRACE_S
     for child in running:
         try:
-            await asyncio.wait_for(child.process.wait(), max(0.1, deadline - time.monotonic()))  # type: ignore[union-attr]
+            async with asyncio.timeout(max(0.1, deadline - time.monotonic())):
+                await child.process.wait()  # type: ignore[union-attr]
         except TimeoutError:
             with contextlib.suppress(ProcessLookupError):
                 child.process.kill()  # type: ignore[union-attr]
@@ -233,7 +234,8 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                     say(f"time limit of {options.time_limit:.0f} s reached")
                     break
                 try:
-                    sample = await asyncio.wait_for(statuses.get(), 0.5)
+                    async with asyncio.timeout(0.5):
+                        sample = await statuses.get()
                 except TimeoutError:
                     continue
                 try:

@@ -151,7 +151,8 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
         try:
             while True:
                 try:
-                    line = await asyncio.wait_for(reader.readline(), self.stale_after)
+                    async with asyncio.timeout(self.stale_after):
+                        line = await reader.readline()
                 except TimeoutError:
                     self._link.connection_lost(f"no tracker frame for {self.stale_after} s")
                     return
@@ -177,7 +178,8 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
         self._reader, self._writer = reader, writer
         self._task = asyncio.create_task(self._receive(reader), name=f"feed:{self.resource}")
         try:
-            await asyncio.wait_for(self._first_frame.wait(), 2 * self.stale_after)
+            async with asyncio.timeout(2 * self.stale_after):
+                await self._first_frame.wait()
         except TimeoutError:
             raise ConnectionError("connected, but no tracker frame arrived") from None
 
@@ -191,7 +193,8 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
         if writer is not None:
             writer.close()
             with contextlib.suppress(Exception):
-                await asyncio.wait_for(writer.wait_closed(), 1.0)
+                async with asyncio.timeout(1.0):
+                    await writer.wait_closed()
         self._reader = None
 
 

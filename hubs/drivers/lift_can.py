@@ -288,7 +288,8 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
             bus, [_Listener(self._on_message, self._link)], timeout=0.05, loop=asyncio.get_running_loop()
         )
         try:
-            await asyncio.wait_for(self._heartbeat_seen.wait(), self.heartbeat_timeout * 2)
+            async with asyncio.timeout(self.heartbeat_timeout * 2):
+                await self._heartbeat_seen.wait()
         except TimeoutError:
             raise ConnectionError(f"no operational heartbeat from node 0x{self.node_id:02x}") from None
         status_deadline = time.monotonic() + max(self.status_timeout * 3, 0.2)

@@ -109,7 +109,8 @@ class ModbusLink:
             raise DeviceUnavailable(f"{self.name}: coupler {self.where} not connected ({self.reconnect.last_error})")
         async with self._lock:
             try:
-                response = await asyncio.wait_for(call(client), self.timeout + 0.5)
+                async with asyncio.timeout(self.timeout + 0.5):
+                    response = await call(client)
             except (ModbusException, OSError, TimeoutError) as exc:
                 reason = f"{what}: {describe(exc)}"
                 if connecting:

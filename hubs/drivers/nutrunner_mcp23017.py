@@ -289,7 +289,8 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
         assert self._executor is not None
         loop = asyncio.get_running_loop()
         try:
-            return await asyncio.wait_for(loop.run_in_executor(self._executor, fn), self.io_timeout)
+            async with asyncio.timeout(self.io_timeout):
+                return await loop.run_in_executor(self._executor, fn)
         except TimeoutError:
             self._executor_stuck = True  # the worker may hang for good: a fresh one on reconnect
             raise

@@ -161,7 +161,8 @@ class ReconnectLogic:
         if self._connected:
             return True
         try:
-            await asyncio.wait_for(self._up.wait(), timeout)
+            async with asyncio.timeout(timeout):
+                await self._up.wait()
         except TimeoutError:
             return self._connected
         return self._connected
@@ -176,7 +177,8 @@ class ReconnectLogic:
         if timeout is None:
             timeout = self.connect_timeout + 0.5
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._attempted.wait(), timeout)
+            async with asyncio.timeout(timeout):
+                await self._attempted.wait()
         return self._connected
 
     # -- the loop -------------------------------------------------------------------
@@ -186,7 +188,8 @@ class ReconnectLogic:
             self._lost.clear()
             self.attempts += 1
             try:
-                await asyncio.wait_for(self._connect(), self.connect_timeout)
+                async with asyncio.timeout(self.connect_timeout):
+                    await self._connect()
                 if self._lost.is_set():
                     raise ConnectionError(self.last_error)
             except asyncio.CancelledError:
@@ -217,7 +220,8 @@ class ReconnectLogic:
         if self._disconnect is None:
             return
         try:
-            await asyncio.wait_for(self._disconnect(), self.connect_timeout)
+            async with asyncio.timeout(self.connect_timeout):
+                await self._disconnect()
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # releasing a dead device may fail; it must not stop the loop

@@ -346,7 +346,8 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         req_id = self._send_nowait(kind, *args)
         self._pending[req_id] = future
         try:
-            return await asyncio.wait_for(future, self.request_timeout)
+            async with asyncio.timeout(self.request_timeout):
+                return await future
         except TimeoutError:
             self._pending.pop(req_id, None)
             self._link.connection_lost(f"worker did not answer {kind!r} within {self.request_timeout} s")
@@ -384,7 +385,8 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         self._ready = loop.create_future()
         loop.add_reader(parent.fileno(), self._on_readable)
         try:
-            self.info = await asyncio.wait_for(self._ready, self.start_timeout)
+            async with asyncio.timeout(self.start_timeout):
+                self.info = await self._ready
         except TimeoutError:
             raise ConnectionError(f"worker did not connect within {self.start_timeout} s") from None
         deadline = time.monotonic() + max(1.0, 4 * self.stale_after)

@@ -104,11 +104,14 @@ class RobotLink:
     async def joints(self) -> list[float] | None:
         try:
             if self._streams is None:
-                self._streams = await asyncio.wait_for(asyncio.open_connection(self.host, self.port), 1.0)
+                async with asyncio.timeout(1.0):
+                    self._streams = await asyncio.open_connection(self.host, self.port)
             reader, writer = self._streams
             writer.write(b'{"cmd": "pose"}\n')
             await writer.drain()
-            reply = json.loads(await asyncio.wait_for(reader.readline(), 1.0))
+            async with asyncio.timeout(1.0):
+                line = await reader.readline()
+            reply = json.loads(line)
             return [float(v) for v in reply["q"]]
         except (TimeoutError, OSError, ValueError, KeyError, TypeError):
             self.close()
