@@ -14,7 +14,7 @@ from common.ctl import StatusMessage
 from common.model import OperationState
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES, BOLTS, bolt
-from tests.fault_station.watcher import Seen, rising_edges, value_at
+from tests.fault_station.watcher import Seen, rising_edges, value_published_before
 
 RUN_TIMEOUT_S = 40.0  # the station needs ~5 s; generous for a loaded 2-core machine
 POSE_OF = {pose: i for i, pose in BOLT_POSES.items()}
@@ -22,10 +22,27 @@ OPERATIONS = tuple(f"TightenBolt{i}" for i in BOLTS)
 
 
 def tightenings(station: Station) -> list[tuple[int | None, Seen]]:
-    """Each tightening the nutrunner did (a rising edge of tqr_m), with the bolt the robot was at."""
+    """Each tightening the nutrunner did (a rising edge of tqr_m), with the bolt the robot was at when the
+    nutrunner's hub reported it (by the hubs' own time stamps, not by when the watcher got each state)."""
     ur_states = station.watch.states("ur")
-    return [(POSE_OF.get(value_at(ur_states, "pos_m", edge.at)), edge)
+    return [(POSE_OF.get(value_published_before(ur_states, "pos_m", edge.message.time)), edge)
             for edge in rising_edges(station.watch.states("nr"), "tqr_m")]
+
+
+def robot_around_tightenings(station: Station, window_s: float = 1.5) -> str:
+    """For a failure message: each tightening and the robot's states published around it (hub time,
+    receive time, seq, pose), so that a missing or late stream shows."""
+    ur_states = station.watch.states("ur")
+    lines = []
+    for i, edge in tightenings(station):
+        t = edge.message.time
+        lines.append(f"tightening at hub time {t:.3f} (received {edge.at:.3f}, nr seq {edge.message.seq}): bolt {i}")
+        near = [s for s in ur_states if abs(s.message.time - t) <= window_s]
+        changes = [s for k, s in enumerate(near) if k == 0 or s.message.pos_m != near[k - 1].message.pos_m]
+        lines += [f"    ur {s.message.time:.3f} (received {s.at:.3f}, seq {s.message.seq}): {s.message.pos_m}"
+                  for s in changes]
+        lines.append(f"    ({len(near)} ur states within {window_s} s)")
+    return "\n".join(lines)
 
 
 def tightened_at(station: Station) -> dict[int | None, int]:
@@ -46,7 +63,8 @@ def assert_station_done_each_bolt_once(station: Station) -> None:
     # What the devices did: one tightening per bolt pose, none anywhere else, no failure.
     first_seqs = {r: (s[0].message.seq if (s := watch.states(r)) else None) for r in ("nr", "ur")}
     assert tightened_at(station) == dict.fromkeys(BOLTS, 1), \
-        f"tightenings per bolt: {tightened_at(station)} (None: the robot was at no bolt); first seqs {first_seqs}"
+        f"tightenings per bolt: {tightened_at(station)} (None: the robot was at no bolt); first seqs {first_seqs}\n" \
+        + robot_around_tightenings(station)
     assert not any(s.message.fail_m for s in watch.states("nr"))
     # What the controller believed: each bolt goes placed -> tightened once, and stays (snapshots come
     # at 1 Hz: wait for one that is newer than the end).

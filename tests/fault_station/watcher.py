@@ -249,6 +249,18 @@ def rising_edges(states: list[Seen], variable: str) -> list[Seen]:
     return edges
 
 
+def value_published_before(states: list[Seen], variable: str, time: float) -> Any:
+    """The value of `variable` in the newest state its hub published at or before `time` (the hubs' own
+    wall-clock stamps: the hubs of a station run share this machine's clock). Unlike `value_at`, it does
+    not depend on the order in which two hubs' states reached the watcher over their own links."""
+    value, newest = None, float("-inf")
+    for seen in states:
+        stamp = seen.message.time
+        if newest <= stamp <= time:
+            value, newest = getattr(seen.message, variable), stamp
+    return value
+
+
 def value_at(states: list[Seen], variable: str, at: float) -> Any:
     """The value of `variable` in the newest state received before `at` (monotonic)."""
     value = None
