@@ -30,20 +30,15 @@ import msgspec
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_seeds import seeds_of  # noqa: E402
 
 from common.recording.schema import PlanRecord  # noqa: E402
 from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 
 RUN_LIMIT_S = 300.0
 SUMMARY = re.compile(r"^(finished|stopped|stuck).*$", re.MULTILINE)
-
-
-def seeds_of(text: str) -> list[int]:
-    seeds: list[int] = []
-    for part in text.split(","):
-        low, _, high = part.partition("-")
-        seeds += list(range(int(low), int(high or low) + 1))
-    return seeds
 
 
 def quantile(values: list[float], q: float) -> float:
