@@ -134,6 +134,7 @@ class ControllerService:
         self._bad_states = BadPayloads(log, "dropped state")
         self._planning: asyncio.Task[None] | None = None  # until the request under way has its first answer
         self._solving: set[asyncio.Task[None]] = set()  # requests whose answers are still coming
+        self._planner_usable = False  # until the planner process has its tables (`_planner_ready`)
         # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.meter = LoopMeter()
@@ -170,14 +171,16 @@ class ControllerService:
 
     async def _planner_ready(self, stop: asyncio.Event) -> None:
         """Plan only once the planner process has its tables (it builds them while the hubs' mirrors come):
-        a request asked earlier would wait for them, and the first plan with it."""
-        if self.planner_process is None:
-            return
-        if await self.planner_process.ready(READY_WAIT_S, stop):
-            log.info("planner ready: its tables built in %.2f s", self.planner_process.ready_seconds or 0.0)
-        elif not stop.is_set():
-            log.warning("the planner process is not ready (gone, or no tables after %.0f s): planning anyway",
-                        READY_WAIT_S)
+        a request asked earlier would wait for them, and its first plan with it. Everything else (state
+        ingestion, commands, ticks) runs meanwhile."""
+        if self.planner_process is not None:
+            if await self.planner_process.ready(READY_WAIT_S, stop):
+                log.info("planner ready: its tables built in %.2f s", self.planner_process.ready_seconds or 0.0)
+            elif not stop.is_set():
+                log.warning("the planner process is not ready (gone, or no tables after %.0f s): planning anyway",
+                            READY_WAIT_S)
+        self._planner_usable = True
+        self._dirty.set()
 
     # --- the loop -------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -190,10 +193,10 @@ class ControllerService:
             asyncio.create_task(self._ingest_states(), name="states"),
             asyncio.create_task(self._watch_hubs(), name="liveliness"),
             asyncio.create_task(self.station_hold.watch(stop), name="holder"),
+            asyncio.create_task(self._planner_ready(stop), name="planner ready"),
         ]
         try:
             await self._take_mirrors()
-            await self._planner_ready(stop)
             self.notifier.ready()
             tasks.append(asyncio.create_task(self._resend_commands(stop), name="resend"))
             tasks.append(asyncio.create_task(self._publish_status_loop(stop), name="status"))
@@ -365,7 +368,7 @@ class ControllerService:
 
     # --- planning off the loop ------------------------------------------------------------
     def _maybe_plan(self) -> None:
-        if self._planning is not None:
+        if self._planning is not None or not self._planner_usable:
             return
         request = self.core.plan_request()
         if request is None:

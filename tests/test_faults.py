@@ -238,11 +238,13 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
 
     reported = station.wait_for(lag_reported, bound + 3.0, "nr reported unhealthy")
     health = next(h for h in reported.message.health if h.resource == "nr")
-    delay = reported.at - sent.at
+    # On the controller's own clock (the command's and the status's time stamps): when the watcher received
+    # each of them says as much about this machine's load as about the watchdog.
+    delay = reported.message.time - sent.message.time
     assert health.reason.startswith(f"mirror lags: command seq {sent.message.seq} "), health.reason
     assert health.mirror_lag >= 1
     # Within the bound plus one status period and scheduling, and not before the bound.
-    assert bound - 0.05 <= delay <= bound + 0.75, f"mirror lag reported after {delay:.2f} s (bound {bound} s)"
+    assert bound <= delay <= bound + 0.75, f"mirror lag reported {delay:.2f} s after the command (bound {bound} s)"
     # Only the mirror shows it: the lazy hub is alive, fresh, says ok, and never ran the nutrunner.
     lazy_states = station.watch.states("nr")
     assert {s.message.mirror.seq for s in lazy_states if s.message.mirror is not None} == mirrors
