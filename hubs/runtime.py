@@ -141,6 +141,9 @@ class HubRuntime:
                 continue
             if command is None or self._is_older(slot, command):
                 continue
+            # The command timeout is about a silent controller: a command that arrived counts even while
+            # the device cannot take it (it is applied when the device is back, the controller is alive).
+            slot.last_command_at = time.monotonic()
             values = slot.codec.values(command)
             try:
                 await slot.driver.write(values)
@@ -264,7 +267,19 @@ class HubRuntime:
             now = loop.time()
             if next_at < now - self.period:  # fell behind (a pause): do not try to catch up
                 next_at = now
-            await asyncio.sleep(next_at - now)  # <= 0: yields once, so commands are never starved
+            wake_at = max(next_at, now)
+            await asyncio.sleep(wake_at - now)  # <= 0: yields once, so commands are never starved
+            self._not_counted_as_silence(loop.time() - wake_at)
+
+    def _not_counted_as_silence(self, late: float) -> None:
+        """This wake-up came `late` s after its time: the hub itself did not run (its process starved
+        of CPU, or its loop blocked). Commands that arrived meanwhile still wait behind this wake-up, so
+        the gap is not the controller's silence and does not count toward the command timeout."""
+        if late <= self.period:  # ordinary scheduling jitter counts as usual
+            return
+        for slot in self.slots.values():
+            if slot.last_command_at is not None:
+                slot.last_command_at += late
 
     async def _read_and_publish(self, slot: ResourceSlot) -> None:
         try:
