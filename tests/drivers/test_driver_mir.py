@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,18 @@ async def test_restarted_hub_adopts_the_running_mission(mir: MirServer) -> None:
         await read_until(drv, pos_m="at_station")
     finally:
         await drv.close()
+
+
+async def test_an_old_status_is_asked_again_not_taken_for_a_lost_robot(driver: MirRest, mir: MirServer) -> None:
+    """The hub was starved (its poll loop did not run) for longer than `stale_after`: a read asks the
+    robot again instead of dropping the connection, and answers with where the robot is now."""
+    await driver.write({"goto_c": "station"})
+    await read_until(driver, pos_m="at_station")
+    polls = sum(1 for m, p in mir.requests if (m, p) == ("GET", "/api/v2.0.0/status"))
+    time.sleep(driver.stale_after + 0.1)  # blocks the loop: no poll, the status ages
+    assert dict(await driver.read()) == {"pos_m": "at_station"}
+    assert driver.connected and driver.link.connects == 1
+    assert sum(1 for m, p in mir.requests if (m, p) == ("GET", "/api/v2.0.0/status")) > polls  # asked again
 
 
 async def test_selftest_passes(driver: MirRest) -> None:
