@@ -275,6 +275,9 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
     # -- worker -----------------------------------------------------------------------
 
     def _fresh_state(self) -> dict[str, Any]:
+        # Take what the worker has sent first: after the hub's own process was starved of CPU, its states
+        # wait in the pipe behind this call, and judging by the last one read would blame the worker.
+        self._on_readable()
         if not self.connected or self._state is None:
             raise DeviceUnavailable(f"{self.resource}: UR not connected ({self._link.last_error})")
         reason = self._staleness(time.monotonic())
@@ -361,6 +364,7 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
     async def _watch(self) -> None:
         while True:
             await asyncio.sleep(self.stale_after / 2)
+            self._on_readable()  # as in _fresh_state: a late wake-up first takes what waits in the pipe
             if self.connected:
                 reason = self._staleness(time.monotonic())
                 if reason:

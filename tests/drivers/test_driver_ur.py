@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import os
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -134,6 +135,15 @@ async def test_silent_controller_is_lost(ur: UrRtde, fake: FakeUr) -> None:
     fake.command(cmd="freeze", on=False)
     await eventually(lambda: ur.connected, timeout=15)
     assert (await ur.read())["pos_m"] == "home"
+
+
+async def test_a_starved_hub_does_not_blame_its_worker(ur: UrRtde) -> None:
+    """The hub's own loop stalls (a starved process) longer than `stale_after` while the worker keeps
+    sending: the states waiting in the pipe are taken before staleness is judged."""
+    await ur.read()
+    time.sleep(3 * ur.stale_after)  # blocks the loop; the worker's states queue up in the pipe
+    assert dict(await ur.read())["pos_m"] == "home"
+    assert ur.connected and ur.link.connects == 1
 
 
 async def test_selftest_passes(ur: UrRtde) -> None:
