@@ -103,12 +103,17 @@ class RobotLink:
 
     async def joints(self) -> list[float] | None:
         try:
+            # asyncio.timeout, not wait_for: Python 3.11's wait_for loses a cancellation that comes as the
+            # reply does, and this link is polled every 10 ms by a task the world cancels when it stops.
             if self._streams is None:
-                self._streams = await asyncio.wait_for(asyncio.open_connection(self.host, self.port), 1.0)
+                async with asyncio.timeout(1.0):
+                    self._streams = await asyncio.open_connection(self.host, self.port)
             reader, writer = self._streams
             writer.write(b'{"cmd": "pose"}\n')
             await writer.drain()
-            reply = json.loads(await asyncio.wait_for(reader.readline(), 1.0))
+            async with asyncio.timeout(1.0):
+                line = await reader.readline()
+            reply = json.loads(line)
             return [float(v) for v in reply["q"]]
         except (TimeoutError, OSError, ValueError, KeyError, TypeError):
             self.close()
