@@ -422,13 +422,20 @@ async def _serve(args: argparse.Namespace) -> None:
 
 # --- as a simulator plugin (device type ur) ----------------------------------------------------
 
+# A real controller streams RTDE in real time; this fake is a Python process that a loaded machine stalls
+# for hundreds of milliseconds (its stream then stops, the timestamp with it). The driver's default
+# (0.25 s, 31 missed samples of a real controller) would restart its worker at every such stall.
+SIM_STALE_AFTER_S = 1.0
+
+
 def _server(device: SimulatedDevice) -> SimServer:
     # The model names the poses; the simulated cell gives each a joint target (hubs.sim.ur_poses).
     table = pose_table(device.model["poses"], device.model["allowed_moves"], device.model["home"])
     return SimServer(
         python_module("hubs.sim.ur_rtde_fake", "--host", "auto"), ready=r"^ready (\S+)$",
         driver_params=lambda host: {"host": host, "motion_backend": "sim", "command_port": COMMAND_PORT,
-                                    "poses": driver_poses(table), "joint_speed": 1.05 * device.speed})
+                                    "poses": driver_poses(table), "joint_speed": 1.05 * device.speed,
+                                    "stale_after": SIM_STALE_AFTER_S})
 
 
 PLUGIN = SimulatorPlugin("fake UR controller", server=_server,
