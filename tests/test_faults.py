@@ -19,6 +19,7 @@ finishes once and stays finished, and the persisted state says the same.
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -45,6 +46,7 @@ from tests.fault_station.watcher import Seen, rising_edges, value_at
 pytestmark = pytest.mark.timeout(120)
 
 DETECTION_BOUND_S = 2.0  # the bound for noticing a frozen hub
+SEEN_LATE_S = 0.3  # how much later than the hub the watcher may see a command or a state
 DETECTION_MARGIN_S = 0.5
 
 
@@ -248,15 +250,22 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
     lazy_states = station.watch.states("nr")
     assert {s.message.mirror.seq for s in lazy_states if s.message.mirror is not None} == mirrors
     statuses = [s.message.status for s in lazy_states]
-    # The hub counts neither a time it did not run itself (a starved process waking late, its commands
-    # still queued) nor a command its device could not take as the controller's silence (hubs/runtime.py),
-    # so a `safe_state` here is a hub bug, unless the controller went silent beyond the command timeout:
-    # the message shows the longest gap between its commands, as the watcher saw them.
+    # Once it got a command it says ok, or `safe_state` while the controller is silent for longer than
+    # the command timeout: a controller starved that long on a loaded machine (seen: 1.5 s at start-up,
+    # both hubs entering their safe state at the same instant) is silence, and the hub does what it must.
+    # A safe state while the controller's commands kept coming is a hub bug: the hub counts neither a
+    # time it did not run itself nor a command its device could not take as silence (hubs/runtime.py).
     sent_at = [c.at for c in controller_commands(station, "nr")]
     gap = max((b - a for a, b in itertools.pairwise(sent_at)), default=0.0)
-    assert set(statuses[statuses.index(HubStatus.OK):]) == {HubStatus.OK}, (
-        f"once it got a command, it says ok; statuses {_changes(statuses)}; "
-        f"longest gap between the controller's commands {gap:.2f} s")
+    first_ok = statuses.index(HubStatus.OK)
+    assert set(statuses[first_ok:]) <= {HubStatus.OK, HubStatus.SAFE_STATE}, f"statuses {_changes(statuses)}"
+    silent_for = station.config.hubs["pi-tool"].command_timeout_s - SEEN_LATE_S
+    for before, state in itertools.pairwise(lazy_states[first_ok:]):
+        if state.message.status == HubStatus.SAFE_STATE and before.message.status != HubStatus.SAFE_STATE:
+            last = max((t for t in sent_at if t <= state.at), default=-math.inf)
+            assert state.at - last >= silent_for, (
+                f"safe_state {state.at - last:.2f} s after a command, while the controller kept commanding; "
+                f"statuses {_changes(statuses)}; longest gap between the controller's commands {gap:.2f} s")
     assert not any(s.message.run_m for s in lazy_states)
     assert health.age is not None and health.age < station.config.controller.stale_after_s
 
