@@ -152,31 +152,37 @@ class MirRest(LinkedDriver[ReconnectLogic]):
             report.add("device answers", False, str(exc))
             return report
         try:
-            report.add("outputs read back", *await self._state_read_back(status))
+            report.add("outputs read back", *await self._state_read_back())
         except DeviceUnavailable as exc:
             report.add("outputs read back", False, str(exc))
         return report
 
-    async def _state_read_back(self, status: Mapping[str, Any]) -> tuple[bool, str]:
-        """Write the robot state and read it back, never starting a motion.
+    async def _state_read_back(self) -> tuple[bool, str]:
+        """Write the robot state and read it back, never changing what the robot does.
 
         Idle and Ready: Pause, read back, Ready again, read back.  Paused: write Pause again.
-        Executing or any other state: not checked (writing would change what the robot does)."""
-        state = int(status.get("state_id", 0))
-        idle = status.get("mission_queue_id") is None
-        if state == READY and idle:
-            sequence = [PAUSE, READY]
-        elif state == PAUSE:
-            sequence = [PAUSE]
-        else:
-            return True, f"not checked: robot {status.get('state_text')} ({state})"
-        for wanted in sequence:
-            await self._request("PUT", "/status", json={"state_id": wanted})
+        Executing or any other state: not checked (writing would change what the robot does).
+        The hub runs its self-test while commands arrive: under the command lock and on a status
+        asked for inside it, so that a mission a command posts meanwhile is never paused by a
+        check that had seen the robot idle (seen: at_kitting, moving, at_kitting, moving)."""
+        async with self._lock:
             await self._poll_once()
-            got = int((self._status or {}).get("state_id", -1))
-            if got != wanted:
-                return False, f"state_id {wanted} written, {got} read back"
-        return True, f"state_id {' then '.join(map(str, sequence))} written and read back"
+            status = self._status or {}
+            state = int(status.get("state_id", 0))
+            idle = status.get("mission_queue_id") is None
+            if state == READY and idle:
+                sequence = [PAUSE, READY]
+            elif state == PAUSE:
+                sequence = [PAUSE]
+            else:
+                return True, f"not checked: robot {status.get('state_text')} ({state})"
+            for wanted in sequence:
+                await self._request("PUT", "/status", json={"state_id": wanted})
+                await self._poll_once()
+                got = int((self._status or {}).get("state_id", -1))
+                if got != wanted:
+                    return False, f"state_id {wanted} written, {got} read back"
+            return True, f"state_id {' then '.join(map(str, sequence))} written and read back"
 
     # -- mapping ----------------------------------------------------------------------
 
