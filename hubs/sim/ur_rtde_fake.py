@@ -348,6 +348,7 @@ class FakeController:
                 "q": robot.q,
                 "tcp": tcp_pose(robot.q),
                 "moving": robot.moving,
+                "target": robot.target,
                 "robot_mode": robot.robot_mode,
                 "safety_mode": robot.safety_mode,
                 "scripts": robot.scripts,
