@@ -19,7 +19,6 @@ finishes once and stays finished, and the persisted state says the same.
 from __future__ import annotations
 
 import itertools
-import math
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,7 +45,6 @@ from tests.fault_station.watcher import Seen, rising_edges, value_at
 pytestmark = pytest.mark.timeout(120)
 
 DETECTION_BOUND_S = 2.0  # the bound for noticing a frozen hub
-SEEN_LATE_S = 0.3  # how much later than the hub the watcher may see a command or a state
 DETECTION_MARGIN_S = 0.5
 
 
@@ -250,22 +248,20 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
     lazy_states = station.watch.states("nr")
     assert {s.message.mirror.seq for s in lazy_states if s.message.mirror is not None} == mirrors
     statuses = [s.message.status for s in lazy_states]
-    # Once it got a command it says ok, or `safe_state` while the controller is silent for longer than
-    # the command timeout: a controller starved that long on a loaded machine (seen: 1.5 s at start-up,
-    # both hubs entering their safe state at the same instant) is silence, and the hub does what it must.
-    # A safe state while the controller's commands kept coming is a hub bug: the hub counts neither a
-    # time it did not run itself nor a command its device could not take as silence (hubs/runtime.py).
+    # Once it got a command it says ok, or `safe_state` while no command reaches it, and ok again with the
+    # next one. A controller starved on a loaded machine is silence, and a hub must then drive its safe
+    # state: seen twice, the controller stalled 1.4-1.5 s around its first plan and the hubs lost its
+    # liveliness (1 s lease) just before their safe state. The watcher cannot tell what reached the hub
+    # (in one of those runs it saw commands every 0.1 s that the hub, the controller's token gone, rightly
+    # did not take), so that a hub drops to its safe state only on silence is tested where it can be,
+    # in tests/test_hub_runtime.py (not its own stalls, not commands its device could not take).
     sent_at = [c.at for c in controller_commands(station, "nr")]
     gap = max((b - a for a, b in itertools.pairwise(sent_at)), default=0.0)
     first_ok = statuses.index(HubStatus.OK)
-    assert set(statuses[first_ok:]) <= {HubStatus.OK, HubStatus.SAFE_STATE}, f"statuses {_changes(statuses)}"
-    silent_for = station.config.hubs["pi-tool"].command_timeout_s - SEEN_LATE_S
-    for before, state in itertools.pairwise(lazy_states[first_ok:]):
-        if state.message.status == HubStatus.SAFE_STATE and before.message.status != HubStatus.SAFE_STATE:
-            last = max((t for t in sent_at if t <= state.at), default=-math.inf)
-            assert state.at - last >= silent_for, (
-                f"safe_state {state.at - last:.2f} s after a command, while the controller kept commanding; "
-                f"statuses {_changes(statuses)}; longest gap between the controller's commands {gap:.2f} s")
+    assert set(statuses[first_ok:]) <= {HubStatus.OK, HubStatus.SAFE_STATE}, (
+        f"statuses {_changes(statuses)}; longest gap between the controller's commands {gap:.2f} s")
+    station.wait_for(lambda: station.watch.states("nr")[-1].message.status == HubStatus.OK, 5.0,
+                     "the lazy hub says ok with the next command")
     assert not any(s.message.run_m for s in lazy_states)
     assert health.age is not None and health.age < station.config.controller.stale_after_s
 
