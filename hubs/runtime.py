@@ -53,6 +53,7 @@ class ResourceSlot:
     driver_fault: str | None = None  # set while the driver's read fails with a bug, not a lost device
     seq: int = 0
     in_safe_state: bool = False
+    applying: bool = False  # a command's write is under way: the controller is not silent
     measured: Mapping[str, Value | None] = field(default_factory=dict)
 
 
@@ -145,6 +146,10 @@ class HubRuntime:
             # the device cannot take it (it is applied when the device is back, the controller is alive).
             slot.last_command_at = time.monotonic()
             values = slot.codec.values(command)
+            # While a write takes its time (a slow device, bounded by the driver's own timeouts) the newer
+            # commands wait behind it: that is no silence either, and a safe state driven meanwhile would
+            # undo what the write is doing (a mission paused as it is posted).
+            slot.applying = True
             try:
                 await slot.driver.write(values)
             except DeviceUnavailable as exc:
@@ -156,6 +161,8 @@ class HubRuntime:
                 slot.status, slot.detail = HubStatus.ERROR, f"{type(exc).__name__}: {exc}"
                 self._publish(slot)
                 continue
+            finally:
+                slot.applying = False
             slot.mirror = command
             slot.last_command_at = time.monotonic()
             slot.in_safe_state = False
@@ -256,7 +263,7 @@ class HubRuntime:
             self.notifier.alive()
             now = time.monotonic()
             for slot in self.slots.values():
-                if slot.last_command_at is not None and not slot.in_safe_state \
+                if slot.last_command_at is not None and not slot.in_safe_state and not slot.applying \
                         and now - slot.last_command_at > self.command_timeout:
                     log.warning("hub %s: no command for %s within %.2f s: safe state", self.hub, slot.name,
                                 self.command_timeout)

@@ -191,6 +191,26 @@ async def test_commands_the_device_cannot_take_still_keep_the_hub_out_of_its_saf
         assert nutrunner.safe_states == 1  # the hub's start only
 
 
+class Slow(RecordingDriver):
+    """Its second write takes 0.6 s (twice the hub's command timeout in these tests)."""
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        if len(self.writes) == 1:
+            await asyncio.sleep(0.6)
+        await super().write(commands)
+
+
+async def test_a_write_that_takes_its_time_is_not_the_controllers_silence() -> None:
+    """Newer commands wait behind a slow write; a safe state driven meanwhile would undo the write."""
+    nutrunner = Slow("nr", "run_c", "run_m", {"run_c": False})
+    async with Hub({"nr": nutrunner}) as hub:
+        hub.command("nr", 1, run_c=True)
+        await hub.state_where("nr", lambda s: s.status == HubStatus.OK)
+        await _keep_commanding(hub, "nr", 1.2, run_c=False)
+        assert nutrunner.safe_states == 1  # the hub's start only
+        assert nutrunner.writes[:2] == [{"run_c": True}, {"run_c": False}]
+
+
 async def test_a_time_the_hub_did_not_run_is_not_the_controllers_silence() -> None:
     """A starved hub process wakes late, the commands that arrived meanwhile still queued behind that
     wake-up: the gap is not counted toward the command timeout. Real silence still is."""
