@@ -56,6 +56,7 @@ class ResourceSlot:
     driver_fault: str | None = None  # set while the driver's read fails with a bug, not a lost device
     seq: int = 0
     in_safe_state: bool = False
+    applying: bool = False  # a command's write is under way: the controller is not silent
     measured: Mapping[str, Value | None] = field(default_factory=dict)
 
 
@@ -138,7 +139,14 @@ class HubRuntime:
                 continue
             if command is None or self._is_older(slot, command):
                 continue
+            # The command timeout is about a silent controller: a command that arrived counts even while
+            # the device cannot take it (it is applied when the device is back, the controller is alive).
+            slot.last_command_at = time.monotonic()
             values = slot.codec.values(command)
+            # While a write takes its time (a slow device, bounded by the driver's own timeouts) the newer
+            # commands wait behind it: that is no silence either, and a safe state driven meanwhile would
+            # undo what the write is doing (a mission paused as it is posted).
+            slot.applying = True
             try:
                 await slot.driver.write(values)
             except DeviceUnavailable as exc:
@@ -150,6 +158,8 @@ class HubRuntime:
                 slot.status, slot.detail = HubStatus.ERROR, f"{type(exc).__name__}: {exc}"
                 self._publish(slot)
                 continue
+            finally:
+                slot.applying = False
             slot.mirror = command
             slot.last_command_at = time.monotonic()
             slot.in_safe_state = False
@@ -250,7 +260,7 @@ class HubRuntime:
             self.notifier.alive()
             now = time.monotonic()
             for slot in self.slots.values():
-                if slot.last_command_at is not None and not slot.in_safe_state \
+                if slot.last_command_at is not None and not slot.in_safe_state and not slot.applying \
                         and now - slot.last_command_at > self.command_timeout:
                     log.warning("hub %s: no command for %s within %.2f s: safe state", self.hub, slot.name,
                                 self.command_timeout)
@@ -261,7 +271,19 @@ class HubRuntime:
             now = loop.time()
             if next_at < now - self.period:  # fell behind (a pause): do not try to catch up
                 next_at = now
-            await asyncio.sleep(next_at - now)  # <= 0: yields once, so commands are never starved
+            wake_at = max(next_at, now)
+            await asyncio.sleep(wake_at - now)  # <= 0: yields once, so commands are never starved
+            self._not_counted_as_silence(loop.time() - wake_at)
+
+    def _not_counted_as_silence(self, late: float) -> None:
+        """This wake-up came `late` s after its time: the hub itself did not run (its process starved
+        of CPU, or its loop blocked). Commands that arrived meanwhile still wait behind this wake-up, so
+        the gap is not the controller's silence and does not count toward the command timeout."""
+        if late <= self.period:  # ordinary scheduling jitter counts as usual
+            return
+        for slot in self.slots.values():
+            if slot.last_command_at is not None:
+                slot.last_command_at += late
 
     async def _read_and_publish(self, slot: ResourceSlot) -> None:
         try:

@@ -18,6 +18,7 @@ finishes once and stays finished, and the persisted state says the same.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -249,7 +250,20 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
     lazy_states = station.watch.states("nr")
     assert {s.message.mirror.seq for s in lazy_states if s.message.mirror is not None} == mirrors
     statuses = [s.message.status for s in lazy_states]
-    assert set(statuses[statuses.index(HubStatus.OK):]) == {HubStatus.OK}, "once it got a command, it says ok"
+    # Once it got a command it says ok, or `safe_state` while no command reaches it, and ok again with the
+    # next one. A controller starved on a loaded machine is silence, and a hub must then drive its safe
+    # state: seen twice, the controller stalled 1.4-1.5 s around its first plan and the hubs lost its
+    # liveliness (1 s lease) just before their safe state. The watcher cannot tell what reached the hub
+    # (in one of those runs it saw commands every 0.1 s that the hub, the controller's token gone, rightly
+    # did not take), so that a hub drops to its safe state only on silence is tested where it can be,
+    # in tests/test_hub_runtime.py (not its own stalls, not commands its device could not take).
+    sent_at = [c.at for c in controller_commands(station, "nr")]
+    gap = max((b - a for a, b in itertools.pairwise(sent_at)), default=0.0)
+    first_ok = statuses.index(HubStatus.OK)
+    assert set(statuses[first_ok:]) <= {HubStatus.OK, HubStatus.SAFE_STATE}, (
+        f"statuses {_changes(statuses)}; longest gap between the controller's commands {gap:.2f} s")
+    station.wait_for(lambda: station.watch.states("nr")[-1].message.status == HubStatus.OK, 5.0,
+                     "the lazy hub says ok with the next command")
     assert not any(s.message.run_m for s in lazy_states)
     assert health.age is not None and health.age < station.config.controller.stale_after_s
 
@@ -266,6 +280,10 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
     station.wait_for(station.watch.finished, RUN_TIMEOUT_S, "the station finishes with a working pi-tool")
     assert station.processes["controller"].popen is controller and controller.poll() is None
     assert_station_done_each_bolt_once(station)
+
+
+def _changes(statuses: list[HubStatus]) -> list[str]:
+    return [str(s) for i, s in enumerate(statuses) if i == 0 or statuses[i - 1] != s]
 
 
 def test_mirror_lag_is_measured_from_the_oldest_command_not_mirrored() -> None:

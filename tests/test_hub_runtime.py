@@ -20,7 +20,7 @@ from common.keys import station_keys
 from common.membus import MemoryBus, MemoryHub
 from common.messages import Codec, HubStatus
 from common.model import Model, Resource, Value, command, measured
-from hubs.drivers.base import Driver, Inputs, Observes, SelftestReport
+from hubs.drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from hubs.runtime import HubRuntime
 
 STATION = "demo"
@@ -157,6 +157,74 @@ async def test_the_hub_mirrors_what_the_safe_state_applied_and_applies_the_next_
         resumed = await hub.state_where("nr", lambda s: s.mirror.seq == 2 and s.run_m is True)
         assert resumed.status == HubStatus.OK and resumed.mirror.run_c is True
         assert nutrunner.writes == [{"run_c": True}, {"run_c": True}]
+
+
+class Unplugged(RecordingDriver):
+    """Takes its first command, then its device is gone: every later write raises DeviceUnavailable."""
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        if self.writes:
+            raise DeviceUnavailable(f"{self.resource}: unplugged")
+        await super().write(commands)
+
+
+async def _keep_commanding(hub: Hub, resource: str, seconds: float, **values: Value) -> None:
+    """The controller's re-sending, every 0.05 s (the hub's command timeout in these tests is 0.3 s)."""
+    seq, until = 100, time.monotonic() + seconds
+    while time.monotonic() < until:
+        seq += 1
+        hub.command(resource, seq, **values)
+        await asyncio.sleep(0.05)
+
+
+async def test_commands_the_device_cannot_take_still_keep_the_hub_out_of_its_safe_state() -> None:
+    """The command timeout is about a silent controller: commands that arrive while the device is gone
+    are not applied (device_lost), but they are no silence."""
+    nutrunner = Unplugged("nr", "run_c", "run_m", {"run_c": False})
+    async with Hub({"nr": nutrunner}) as hub:
+        hub.command("nr", 1, run_c=True)
+        await hub.state_where("nr", lambda s: s.status == HubStatus.OK)
+        await _keep_commanding(hub, "nr", 1.0, run_c=True)
+        states = [hub.codecs["nr"].decode_state(p.payload) for p in hub.bus.published if p.key == hub.keys.state("nr")]
+        assert HubStatus.DEVICE_LOST in {s.status for s in states}
+        assert HubStatus.SAFE_STATE not in {s.status for s in states}
+        assert nutrunner.safe_states == 1  # the hub's start only
+
+
+class Slow(RecordingDriver):
+    """Its second write takes 0.6 s (twice the hub's command timeout in these tests)."""
+
+    async def write(self, commands: Mapping[str, Value]) -> None:
+        if len(self.writes) == 1:
+            await asyncio.sleep(0.6)
+        await super().write(commands)
+
+
+async def test_a_write_that_takes_its_time_is_not_the_controllers_silence() -> None:
+    """Newer commands wait behind a slow write; a safe state driven meanwhile would undo the write."""
+    nutrunner = Slow("nr", "run_c", "run_m", {"run_c": False})
+    async with Hub({"nr": nutrunner}) as hub:
+        hub.command("nr", 1, run_c=True)
+        await hub.state_where("nr", lambda s: s.status == HubStatus.OK)
+        await _keep_commanding(hub, "nr", 1.2, run_c=False)
+        assert nutrunner.safe_states == 1  # the hub's start only
+        assert nutrunner.writes[:2] == [{"run_c": True}, {"run_c": False}]
+
+
+async def test_a_time_the_hub_did_not_run_is_not_the_controllers_silence() -> None:
+    """A starved hub process wakes late, the commands that arrived meanwhile still queued behind that
+    wake-up: the gap is not counted toward the command timeout. Real silence still is."""
+    nutrunner = RecordingDriver("nr", "run_c", "run_m", {"run_c": False})
+    async with Hub({"nr": nutrunner}) as hub:
+        hub.command("nr", 1, run_c=True)
+        await hub.state_where("nr", lambda s: s.status == HubStatus.OK)
+        commanding = asyncio.create_task(_keep_commanding(hub, "nr", 1.0, run_c=True))
+        await asyncio.sleep(0.2)
+        time.sleep(0.6)  # the whole loop stalls (blocked here), longer than the command timeout
+        await commanding
+        assert nutrunner.safe_states == 1, "the hub's own stall was taken for the controller's silence"
+        await hub.state_where("nr", lambda s: s.status == HubStatus.SAFE_STATE)  # silence from here on
+        assert nutrunner.safe_states == 2
 
 
 class Uninterested(RecordingDriver):

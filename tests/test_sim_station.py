@@ -113,12 +113,30 @@ def test_sim_mode_leaves_devices_without_a_simulator_emulated() -> None:
 
 # --- self-test ---------------------------------------------------------------------------------
 
+# A self-test process needs ~0.5 s of CPU (most of it Python starting up), and the test starts eight at
+# once, each UR self-test with a worker process of its own, on a 2-core machine that other test workers
+# keep busy: they are slow then, not stuck (the slowest driver check is bounded at ~30 s, see
+# UrRtde.selftest). A process over this is killed and reported with what it printed.
+SELFTEST_DEADLINE_S = 120.0
+
+
 async def _selftest(hub: str, world: SimWorld) -> tuple[int, str]:
     process = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "deploy.cli", "selftest", hub, "--config", str(REFERENCE), "--mode", "sim",
         *world.hub_args(hub), cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
-    out, _ = await asyncio.wait_for(process.communicate(), 60)
+    assert process.stdout is not None
+    began, out = time.monotonic(), b""
+    try:
+        async with asyncio.timeout(SELFTEST_DEADLINE_S):
+            while chunk := await process.stdout.read(4096):
+                out += chunk
+            await process.wait()
+    except TimeoutError:
+        process.kill()
+        await process.wait()
+        raise AssertionError(f"hubctl selftest {hub} still running after {time.monotonic() - began:.0f} s; "
+                             f"it printed:\n{out.decode(errors='replace')}") from None
     return process.returncode or 0, out.decode(errors="replace")
 
 
@@ -157,11 +175,28 @@ async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monk
             since = cell.mark(path)
             cell.command(resource, **command)  # type: ignore[arg-type]
             await cell.wait(path, target)  # type: ignore[arg-type]
-            assert cell.trace(path, since) == expected, f"{resource} {command}: {path} went {cell.trace(path, since)}"
+            went = cell.trace(path, since)
+            assert went == expected, (f"{resource} {command}: {path} went {went} "
+                                      f"(longest gap between commands {cell.longest_command_gap:.2f} s)")
+
+        seen_between = 0  # moves whose `unknown` the hub reported
 
         async def move(pose: str) -> None:
+            """The model's move: the start pose, `unknown` while the robot moves, the target, and never another
+            pose on the way. The hub samples the robot (50 Hz, through the fake's RTDE stream and the driver's
+            worker), so a move of 0.12-0.25 s at this speed can fall between two samples when a process of
+            that chain is starved: `unknown` may then be missed, which the system does not promise to show.
+            What it does promise is checked: the poses in order, and a pose named only where the robot stands
+            (asked of the fake controller itself once the hub names the target)."""
+            nonlocal seen_between
             start = cell.trace("ur.pos_m")[-1]  # the last known pose: under load a read may be momentarily unknown
-            await step("ur", "ur.pos_m", pose, [start, "unknown", pose], ref_pos_c=pose)
+            since = cell.mark("ur.pos_m")
+            cell.command("ur", ref_pos_c=pose)
+            await cell.wait("ur.pos_m", pose)
+            assert await cell.robot_stands_at("ur", pose), f"ur reported {pose} before the robot got there"
+            went = cell.trace("ur.pos_m", since)
+            assert went in ([start, "unknown", pose], [start, pose]), f"ur {pose}: ur.pos_m went {went}"
+            seen_between += went == [start, "unknown", pose]
 
         await step("mir", "mir.pos_m", "at_station", ["at_kitting", "moving", "at_station"], goto_c="station")
         # take the lift tool: coupled at its slot, it leaves the dock with the robot
@@ -200,10 +235,13 @@ async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monk
         await step("nr", "nr.run_m", False, [True, False], run_c=False)
         await move("at_bolt2")  # along the ring of bolts
         await step("mir", "mir.pos_m", "at_kitting", ["at_station", "moving", "at_kitting"], goto_c="kitting")
+        # A driver that named the target as soon as it was commanded would never show the robot between
+        # poses; a starved machine misses a short move's `unknown` now and then, not in every move.
+        assert seen_between > 0, "ur.pos_m was never `unknown` between two poses"
         assert not cell.dead_hubs()
-        assert all(cell.values.get(f"{r}.{v.name}") is not None
-                   for r in ("nr", "lift", "rsp", "dock", "mir", "ur", "rfid", "cam")
-                   for v in cell.model.resource_by_name[r].measured), "a device stopped answering"
+        # Every device still answers. Not at one instant: a driver that finds its simulator stalled (a
+        # starved process) reports it unknown and reconnects, as it should; one that died never comes back.
+        await cell.wait_all_measured(timeout=20.0)
     print(f"reference device story in sim mode: {time.monotonic() - began:.1f} s")
 
 

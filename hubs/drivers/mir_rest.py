@@ -27,9 +27,12 @@ Mapping:
   is idle away from the target (its queue was lost, e.g. after a reboot).
   ``goto_c = none``: abort the queue and Pause (the robot stops).
 
-Device lost: a failed or timed-out poll, or a status older than ``stale_after``:
-``read`` raises ``DeviceUnavailable``; the shared ReconnectLogic reconnects with
-backoff.  A 401 is reported as a connect failure ("authentication rejected").
+Device lost: a failed or timed-out request: ``read`` raises ``DeviceUnavailable``; the
+shared ReconnectLogic reconnects with backoff.  A status older than ``stale_after`` is
+asked for again by ``read`` and ``write`` before they use it (the poll loop may simply
+not have run), so only a robot that does not answer is lost.  ``GET /status`` requests
+go one at a time, so a stored status never goes back in time.  A 401 is reported as a
+connect failure ("authentication rejected").
 
 Safe state: ``goto_c = none`` (the queue is aborted and the robot pauses where it is).
 """
@@ -40,6 +43,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import ssl
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -87,6 +91,9 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         self.stale_after = max(3 * poll_interval, poll_interval + timeout) + 0.2
         self._headers = {"Authorization": auth_header(username, password), "Accept-Language": "en_US"}
         self._client: httpx.AsyncClient | None = None
+        # Made once: building it loads the CA bundle (~40 ms of CPU, far more on a loaded machine), which
+        # every reconnect's new client would otherwise do on the event loop.
+        self._ssl = ssl.create_default_context()
         self._poller: asyncio.Task[None] | None = None
         self._status: dict[str, Any] | None = None
         self._status_time = 0.0
@@ -95,6 +102,7 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         self._active_entry: int | None = None  # its mission queue id
         self._last_queue_check = 0.0
         self._lock = asyncio.Lock()
+        self._status_lock = asyncio.Lock()  # one GET /status at a time (see _poll_once)
         self._link = ReconnectLogic(
             f"{resource}@{host}:{port}", self._open, self._release, backoff=backoff, connect_timeout=3 * timeout + 1
         )
@@ -102,7 +110,7 @@ class MirRest(LinkedDriver[ReconnectLogic]):
     # -- Driver API -------------------------------------------------------------------
 
     async def read(self) -> Mapping[str, Value]:
-        status = self._fresh_status()
+        status = await self._current_status()
         return {"pos_m": self._position_name(status)}
 
     async def write(self, commands: Mapping[str, Value]) -> None:
@@ -112,9 +120,9 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         if goto != "none" and goto not in TARGETS:
             raise ValueError(f"{self.resource}: goto_c must be none, kitting or station, got {goto!r}")
         self._desired = goto
-        self._fresh_status()
+        await self._current_status()
         async with self._lock:
-            await self._apply(goto, self._fresh_status())
+            await self._apply(goto, await self._current_status())
 
     async def enter_safe_state(self) -> Mapping[str, Value]:
         safe: dict[str, Value] = {"goto_c": "none"}
@@ -129,7 +137,7 @@ class MirRest(LinkedDriver[ReconnectLogic]):
             report.add("outputs read back", False, "not checked: device absent")
             return report
         try:
-            status = self._fresh_status()
+            status = await self._current_status()
             known = {m.get("guid") for m in await self._request("GET", "/missions")}
             unknown = [f"{t}={g}" for t, g in self.missions.items() if g not in known]
             detail = f"{status.get('robot_name', 'MiR')} at {self.base_url}, state {status.get('state_text')}"
@@ -144,31 +152,37 @@ class MirRest(LinkedDriver[ReconnectLogic]):
             report.add("device answers", False, str(exc))
             return report
         try:
-            report.add("outputs read back", *await self._state_read_back(status))
+            report.add("outputs read back", *await self._state_read_back())
         except DeviceUnavailable as exc:
             report.add("outputs read back", False, str(exc))
         return report
 
-    async def _state_read_back(self, status: Mapping[str, Any]) -> tuple[bool, str]:
-        """Write the robot state and read it back, never starting a motion.
+    async def _state_read_back(self) -> tuple[bool, str]:
+        """Write the robot state and read it back, never changing what the robot does.
 
         Idle and Ready: Pause, read back, Ready again, read back.  Paused: write Pause again.
-        Executing or any other state: not checked (writing would change what the robot does)."""
-        state = int(status.get("state_id", 0))
-        idle = status.get("mission_queue_id") is None
-        if state == READY and idle:
-            sequence = [PAUSE, READY]
-        elif state == PAUSE:
-            sequence = [PAUSE]
-        else:
-            return True, f"not checked: robot {status.get('state_text')} ({state})"
-        for wanted in sequence:
-            await self._request("PUT", "/status", json={"state_id": wanted})
+        Executing or any other state: not checked (writing would change what the robot does).
+        The hub runs its self-test while commands arrive: under the command lock and on a status
+        asked for inside it, so that a mission a command posts meanwhile is never paused by a
+        check that had seen the robot idle (seen: at_kitting, moving, at_kitting, moving)."""
+        async with self._lock:
             await self._poll_once()
-            got = int((self._status or {}).get("state_id", -1))
-            if got != wanted:
-                return False, f"state_id {wanted} written, {got} read back"
-        return True, f"state_id {' then '.join(map(str, sequence))} written and read back"
+            status = self._status or {}
+            state = int(status.get("state_id", 0))
+            idle = status.get("mission_queue_id") is None
+            if state == READY and idle:
+                sequence = [PAUSE, READY]
+            elif state == PAUSE:
+                sequence = [PAUSE]
+            else:
+                return True, f"not checked: robot {status.get('state_text')} ({state})"
+            for wanted in sequence:
+                await self._request("PUT", "/status", json={"state_id": wanted})
+                await self._poll_once()
+                got = int((self._status or {}).get("state_id", -1))
+                if got != wanted:
+                    return False, f"state_id {wanted} written, {got} read back"
+            return True, f"state_id {' then '.join(map(str, sequence))} written and read back"
 
     # -- mapping ----------------------------------------------------------------------
 
@@ -249,19 +263,30 @@ class MirRest(LinkedDriver[ReconnectLogic]):
         return response.json() if response.content else None
 
     async def _poll_once(self, *, connecting: bool = False) -> None:
-        status = await self._request("GET", "/status", connecting=connecting)
-        if not isinstance(status, dict) or "state_id" not in status:
-            raise DeviceUnavailable(f"{self.resource}: status without state_id")
-        self._status, self._status_time = status, time.monotonic()
+        # The poll loop, a command's refresh and a late read all ask for the status. One request at a
+        # time: the answers then come in the order asked, and an older one never replaces a newer one.
+        async with self._status_lock:
+            status = await self._request("GET", "/status", connecting=connecting)
+            if not isinstance(status, dict) or "state_id" not in status:
+                raise DeviceUnavailable(f"{self.resource}: status without state_id")
+            self._status, self._status_time = status, time.monotonic()
 
-    def _fresh_status(self) -> dict[str, Any]:
+    async def _current_status(self) -> dict[str, Any]:
+        """The last status, asked again when it is older than `stale_after`.
+
+        An old status means only that nobody asked: the poll loop did not run (this hub starved of
+        CPU, or its loop blocked). Only a robot that does not answer now is lost (`_request`)."""
         if not self.connected or self._status is None:
             raise DeviceUnavailable(f"{self.resource}: MiR not connected ({self._link.last_error})")
         age = time.monotonic() - self._status_time
         if age > self.stale_after:
-            reason = f"no status for {age:.1f} s"
-            self._link.connection_lost(reason)
-            raise DeviceUnavailable(f"{self.resource}: {reason}")
+            if self._poller is None or self._poller.done():
+                reason = f"no status for {age:.1f} s: the status poll stopped"
+                self._link.connection_lost(reason)  # reconnecting starts a new poll loop
+                raise DeviceUnavailable(f"{self.resource}: {reason}")
+            await self._poll_once()
+        if self._status is None:  # lost while asking
+            raise DeviceUnavailable(f"{self.resource}: MiR not connected ({self._link.last_error})")
         return self._status
 
     async def _poll_loop(self) -> None:
@@ -275,7 +300,8 @@ class MirRest(LinkedDriver[ReconnectLogic]):
     async def _open(self) -> None:
         self._status = None
         self._active, self._active_entry = None, None
-        self._client = httpx.AsyncClient(base_url=self.base_url, headers=self._headers, timeout=self.timeout)
+        self._client = httpx.AsyncClient(base_url=self.base_url, headers=self._headers, timeout=self.timeout,
+                                         verify=self._ssl)
         await self._poll_once(connecting=True)
         # Adopt a mission of ours that is still queued or running (hub restart, network blip).
         queue = await self._request("GET", "/mission_queue", connecting=True) or []

@@ -254,27 +254,37 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
         remote = await self.dashboard("is in remote control")
         if remote.strip().lower() != "true":
             return False, f"robot in local control (dashboard: {remote!r}): motion commands are refused"
-        state = self._fresh_state()
-        if state["protective_stop"] or state["robot_mode"] != RUNNING or self._moving(state):
-            return True, (
-                f"in remote control; zero-length move not tried (robot_mode {state['robot_mode']}, "
-                f"protective stop {state['protective_stop']}, moving {self._moving(state)})"
-            )
-        q = list(state["q"])
-        ok, detail = await self._request("move", "joint", q)
-        if not ok:
-            return False, f"zero-length move refused: {detail}"
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            back = self._fresh_state()["target_q"]
-            if max(abs(a - b) for a, b in zip(back, q, strict=True)) <= self.joint_tolerance:
-                return True, "in remote control; zero-length move accepted, target_q read back"
-            await asyncio.sleep(0.02)
-        return False, "zero-length move accepted but target_q does not read back"
+        # The hub runs its self-test while commands arrive: under the lock moves are issued with, on a
+        # state taken inside it, so that a zero-length move never cancels a commanded one (a robot sent
+        # back to where it stood when the check began).
+        async with self._drive_lock:
+            state = self._fresh_state()
+            wanted = None if self._held else self._desired
+            if wanted is not None and self.pose_name(state) != wanted:
+                return True, f"in remote control; zero-length move not tried (a move to {wanted} is commanded)"
+            if state["protective_stop"] or state["robot_mode"] != RUNNING or self._moving(state):
+                return True, (
+                    f"in remote control; zero-length move not tried (robot_mode {state['robot_mode']}, "
+                    f"protective stop {state['protective_stop']}, moving {self._moving(state)})"
+                )
+            q = list(state["q"])
+            ok, detail = await self._request("move", "joint", q)
+            if not ok:
+                return False, f"zero-length move refused: {detail}"
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                back = self._fresh_state()["target_q"]
+                if max(abs(a - b) for a, b in zip(back, q, strict=True)) <= self.joint_tolerance:
+                    return True, "in remote control; zero-length move accepted, target_q read back"
+                await asyncio.sleep(0.02)
+            return False, "zero-length move accepted but target_q does not read back"
 
     # -- worker -----------------------------------------------------------------------
 
     def _fresh_state(self) -> dict[str, Any]:
+        # Take what the worker has sent first: after the hub's own process was starved of CPU, its states
+        # wait in the pipe behind this call, and judging by the last one read would blame the worker.
+        self._on_readable()
         if not self.connected or self._state is None:
             raise DeviceUnavailable(f"{self.resource}: UR not connected ({self._link.last_error})")
         reason = self._staleness(time.monotonic())
@@ -362,6 +372,7 @@ class UrRtde(LinkedDriver[ReconnectLogic]):
     async def _watch(self) -> None:
         while True:
             await asyncio.sleep(self.stale_after / 2)
+            self._on_readable()  # as in _fresh_state: a late wake-up first takes what waits in the pipe
             if self.connected:
                 reason = self._staleness(time.monotonic())
                 if reason:

@@ -6,9 +6,11 @@ world, talking to the simulators through their side channels only (never through
 device protocol the hubs use):
 
 * **Flange** (``FlangeCoupling``): the tool changer sees which dock slot the robot's
-  flange is at. It polls the fake UR controller's pose (command port, ``{"cmd":
-  "pose"}``) and writes the Modbus coupler's flange register (holding register 0:
-  0 away, n at slot n) when it changes; the dock's slot sensors follow from the
+  flange is at. It subscribes to the fake UR controller's flange slot (command port,
+  ``{"cmd": "watch_flange"}``, ``hubs.sim.ur_flange``) and writes the Modbus coupler's
+  flange register (holding register 0: 0 away, n at slot n) at each change before it
+  acknowledges it; the fake's RTDE streams wait for that acknowledgement, so nobody sees
+  the robot at a slot before the changer does. The dock's slot sensors follow from the
   coupler's physics.
 * **Operator** (``OperatorCoupling``): the operator is an emulated resource (there is
   no protocol for a human), but the devices that sense the operator are simulated. It
@@ -103,6 +105,8 @@ class RobotLink:
 
     async def joints(self) -> list[float] | None:
         try:
+            # asyncio.timeout, not wait_for: Python 3.11's wait_for loses a cancellation that comes as the
+            # reply does, and this link is polled every 10 ms by a task the world cancels when it stops.
             if self._streams is None:
                 async with asyncio.timeout(1.0):
                     self._streams = await asyncio.open_connection(self.host, self.port)
@@ -123,37 +127,59 @@ class RobotLink:
             streams[1].close()
 
 
-def slot_of(q: Sequence[float], slots: Mapping[int, Sequence[float]], tolerance: float) -> int:
-    """The dock slot whose robot pose `q` is at (every joint within `tolerance`), 0 when none."""
-    for slot, target in slots.items():
-        if max(abs(a - b) for a, b in zip(q, target, strict=True)) <= tolerance:
-            return slot
-    return 0
-
-
 @dataclass
 class FlangeCoupling:
-    """Robot pose → the coupler's flange register. `slots`: dock slot number → the joint target of its pose."""
+    """The robot's dock slot → the coupler's flange register. `slots`: dock slot number → the joint target of
+    its pose.
+
+    Subscribed on the fake controller's command port (``hubs.sim.ur_flange``), not polled: its RTDE streams
+    wait until this has written the register, so that nobody sees the robot at a slot before the changer
+    does (polled, a controller under load could unlock the changer first and the tool fell)."""
 
     robot: RobotLink
     coupler: CouplerLink
     slots: Mapping[int, Sequence[float]]
     tolerance: float = 0.01
-    period: float = 0.01
+    retry: float = 0.5  # s before trying a robot or a coupler again that did not answer
 
     async def run(self) -> None:
-        written: int | None = None
         while True:
-            q = await self.robot.joints()
-            if q is None:
-                written = None  # the robot is gone; write again once it is back
-                await asyncio.sleep(0.5)
-                continue
-            slot = slot_of(q, self.slots, self.tolerance)
-            if slot != written and await self.coupler.write(HR_FLANGE, slot):
-                log.debug("flange at slot %d", slot)
-                written = slot
-            await asyncio.sleep(self.period)
+            try:
+                await self._follow()
+            except (TimeoutError, ConnectionError, OSError, ValueError, KeyError, TypeError) as exc:
+                log.debug("flange watch of %s:%d: %s", self.robot.host, self.robot.port, exc)
+            await asyncio.sleep(self.retry)
+
+    async def _follow(self) -> None:
+        async with asyncio.timeout(1.0):
+            reader, writer = await asyncio.open_connection(self.robot.host, self.robot.port)
+        try:
+            request = {"cmd": "watch_flange", "slots": {str(n): list(q) for n, q in self.slots.items()},
+                       "tolerance": self.tolerance}
+            writer.write(json.dumps(request).encode() + b"\n")
+            await writer.drain()
+            async with asyncio.timeout(1.0):
+                if not json.loads(await reader.readline()).get("ok"):
+                    raise ValueError("watch_flange refused")
+            slot: int | None = None
+            written: int | None = None
+            while True:
+                line: bytes | None = None
+                with contextlib.suppress(TimeoutError):  # a write that failed is tried again meanwhile
+                    async with asyncio.timeout(self.retry if slot != written else None):
+                        line = await reader.readline()
+                if line is not None:
+                    if not line:
+                        raise ConnectionError("the robot closed its flange watch")
+                    slot = int(json.loads(line)["slot"])
+                if slot is not None and slot != written and await self.coupler.write(HR_FLANGE, slot):
+                    log.debug("flange at slot %d", slot)
+                    written = slot
+                if line is not None:  # acknowledged even when the coupler is away: the robot is not held
+                    writer.write(json.dumps({"ack": slot}).encode() + b"\n")
+                    await writer.drain()
+        finally:
+            writer.close()
 
 
 # --- the operator as the camera sees them --------------------------------------------------

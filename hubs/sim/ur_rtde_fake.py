@@ -44,8 +44,10 @@ It prints ``ready HOST`` once every port listens (``auto``: the first 127.0.N.2,
   ``{"cmd": "protective_stop"}`` (a collision), ``{"cmd": "freeze", "on": bool}`` (RTDE
   data stops, connections stay: a hung controller), ``{"cmd": "remote_control", "on":
   bool}`` (moves are refused in local mode), ``{"cmd": "state"}`` (everything, for tests),
-  ``{"cmd": "pose"}`` (only ``q`` and ``moving``: what a simulated cell polls to know
-  where the flange is).
+  ``{"cmd": "pose"}`` (only ``q`` and ``moving``), ``{"cmd": "watch_flange", "slots":
+  {...}, "tolerance": rad}`` (the connection becomes the simulated cell's subscription to
+  the flange's dock slot; the RTDE streams wait for its acknowledgement of a change,
+  ``hubs.sim.ur_flange``).
 
 Motion: joint-space linear interpolation, all joints arriving together, leading joint
 at ``speed`` rad/s; it stops on ``stop`` (command port or dashboard), on a protective
@@ -79,6 +81,7 @@ from hubs.protocols.ur import (
     SCRIPT_PORTS,
 )
 from hubs.sim.registry import SimServer, SimulatedDevice, SimulatorPlugin, python_module
+from hubs.sim.ur_flange import FlangeWatch
 from hubs.sim.ur_kinematics import inverse, tcp_pose
 from hubs.sim.ur_poses import driver_poses, pose_table
 from hubs.sim.ur_robot import HOME_Q, FakeRobot
@@ -121,6 +124,7 @@ class FakeController:
         self.script_ports = script_ports
         self.rate = rate
         self.recipes_requested: list[list[str]] = []
+        self.flange: FlangeWatch | None = None  # the simulated cell's subscription (hubs.sim.ur_flange)
         self._servers: list[asyncio.Server] = []
 
     async def start(self) -> None:
@@ -210,6 +214,8 @@ class FakeController:
             if self.robot.frozen:
                 continue
             self.robot.update()
+            if self.flange is not None:  # the cell knows where the flange is before anyone sees it there
+                await self.flange.announce(self.robot.q)
             for recipe_id, names in recipes.items():
                 body = bytes([recipe_id]) + b"".join(encode(rtde_type(n), self.robot.value(n)) for n in names)
                 writer.write(message(DATA_PACKAGE, body))
@@ -342,6 +348,7 @@ class FakeController:
                 "q": robot.q,
                 "tcp": tcp_pose(robot.q),
                 "moving": robot.moving,
+                "target": robot.target,
                 "robot_mode": robot.robot_mode,
                 "safety_mode": robot.safety_mode,
                 "scripts": robot.scripts,
@@ -357,6 +364,9 @@ class FakeController:
             while line := await reader.readline():
                 try:
                     request = json.loads(line)
+                    if isinstance(request, dict) and request.get("cmd") == "watch_flange":
+                        await self._watch_flange(request, reader, writer)
+                        return
                     reply = self.command_reply(request if isinstance(request, dict) else {})
                 except (ValueError, KeyError, TypeError) as exc:
                     reply = {"ok": False, "error": f"bad request: {exc}"}
@@ -366,6 +376,18 @@ class FakeController:
             pass
         finally:
             writer.close()
+
+    async def _watch_flange(self, request: dict[str, Any], reader: asyncio.StreamReader,
+                            writer: asyncio.StreamWriter) -> None:
+        """This connection becomes the cell's flange subscription (hubs.sim.ur_flange) until it closes."""
+        slots = {int(slot): [float(v) for v in q] for slot, q in request["slots"].items()}
+        watch = FlangeWatch(slots, float(request.get("tolerance", 0.01)), reader, writer)
+        if self.flange is not None:
+            self.flange.close()
+        self.flange = watch
+        writer.write(json.dumps({"ok": True}).encode() + b"\n")
+        await writer.drain()
+        await watch.closed.wait()
 
     async def _script(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         chunks = []
@@ -422,13 +444,20 @@ async def _serve(args: argparse.Namespace) -> None:
 
 # --- as a simulator plugin (device type ur) ----------------------------------------------------
 
+# A real controller streams RTDE in real time; this fake is a Python process that a loaded machine stalls
+# for hundreds of milliseconds (its stream then stops, the timestamp with it). The driver's default
+# (0.25 s, 31 missed samples of a real controller) would restart its worker at every such stall.
+SIM_STALE_AFTER_S = 1.0
+
+
 def _server(device: SimulatedDevice) -> SimServer:
     # The model names the poses; the simulated cell gives each a joint target (hubs.sim.ur_poses).
     table = pose_table(device.model["poses"], device.model["allowed_moves"], device.model["home"])
     return SimServer(
         python_module("hubs.sim.ur_rtde_fake", "--host", "auto"), ready=r"^ready (\S+)$",
         driver_params=lambda host: {"host": host, "motion_backend": "sim", "command_port": COMMAND_PORT,
-                                    "poses": driver_poses(table), "joint_speed": 1.05 * device.speed})
+                                    "poses": driver_poses(table), "joint_speed": 1.05 * device.speed,
+                                    "stale_after": SIM_STALE_AFTER_S})
 
 
 PLUGIN = SimulatorPlugin("fake UR controller", server=_server,

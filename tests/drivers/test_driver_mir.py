@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,42 @@ async def test_restarted_hub_adopts_the_running_mission(mir: MirServer) -> None:
         await read_until(drv, pos_m="at_station")
     finally:
         await drv.close()
+
+
+async def test_an_old_status_is_asked_again_not_taken_for_a_lost_robot(driver: MirRest, mir: MirServer) -> None:
+    """The hub was starved (its poll loop did not run) for longer than `stale_after`: a read asks the
+    robot again instead of dropping the connection, and answers with where the robot is now."""
+    await driver.write({"goto_c": "station"})
+    await read_until(driver, pos_m="at_station")
+    polls = sum(1 for m, p in mir.requests if (m, p) == ("GET", "/api/v2.0.0/status"))
+    time.sleep(driver.stale_after + 0.1)  # blocks the loop: no poll, the status ages
+    assert dict(await driver.read()) == {"pos_m": "at_station"}
+    assert driver.connected and driver.link.connects == 1
+    assert sum(1 for m, p in mir.requests if (m, p) == ("GET", "/api/v2.0.0/status")) > polls  # asked again
+
+
+class PauseRecordingRobot(MirRobot):
+    """Counts the times the robot is paused with a mission of its queue pending or under way."""
+
+    missions_paused = 0
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "state_id" and value == sim.PAUSE and any(
+                e.state in ("Pending", "Executing") for e in getattr(self, "queue", [])):
+            type(self).missions_paused += 1
+        super().__setattr__(name, value)
+
+
+async def test_the_selftest_never_pauses_a_mission_a_command_posts_meanwhile(serve: Serve, connect: Connect) -> None:
+    """The hub runs its self-test while commands arrive: its Pause/Ready read-back must not interleave
+    with a command that posts a mission (seen in sim mode: at_kitting, moving, at_kitting, moving)."""
+    PauseRecordingRobot.missions_paused = 0
+    mir = await serve(MirServer(PauseRecordingRobot(speed=2.0)))
+    driver = await connect(make_driver("mir", "mir", "sim", params(mir.port)))
+    report, _ = await asyncio.gather(driver.selftest(), driver.write({"goto_c": "station"}))
+    assert report.ok, report
+    await read_until(driver, pos_m="moving")
+    assert PauseRecordingRobot.missions_paused == 0
 
 
 async def test_selftest_passes(driver: MirRest) -> None:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import asyncio
 import itertools
 import os
+import time
 from collections.abc import Iterator
 
 import pytest
 from drvtest import Connect, eventually, read_until
-from ur_fake import HOME, FakeUr, ur_params
+from ur_fake import HOME, POSES, FakeUr, ur_params
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.ur_rtde import Pose, UrRtde, rotation_between
@@ -134,6 +135,32 @@ async def test_silent_controller_is_lost(ur: UrRtde, fake: FakeUr) -> None:
     fake.command(cmd="freeze", on=False)
     await eventually(lambda: ur.connected, timeout=15)
     assert (await ur.read())["pos_m"] == "home"
+
+
+async def test_a_starved_hub_does_not_blame_its_worker(ur: UrRtde) -> None:
+    """The hub's own loop stalls (a starved process) longer than `stale_after` while the worker keeps
+    sending: the states waiting in the pipe are taken before staleness is judged."""
+    await ur.read()
+    time.sleep(3 * ur.stale_after)  # blocks the loop; the worker's states queue up in the pipe
+    assert dict(await ur.read())["pos_m"] == "home"
+    assert ur.connected and ur.link.connects == 1
+
+
+async def test_the_selftest_never_sends_back_a_robot_a_command_moves(fake: FakeUr) -> None:
+    """The hub runs its self-test while commands arrive: its zero-length move must not interleave with a
+    commanded move (the robot would be sent back to where it stood when the check began)."""
+    ur = make_driver("ur", "ur", "sim", ur_params(fake.host, joint_speed=0.6, reissue_after=5.0))
+    assert isinstance(ur, UrRtde)
+    await ur.connect()
+    try:
+        assert await ur.link.wait_connected(15)
+        report, _ = await asyncio.gather(ur.selftest(), ur.write({"ref_pos_c": "at_bolt1"}))
+        assert report.ok, report
+        state = fake.command(cmd="state")  # 1 s to at_bolt1: still on its way, or there
+        bolt1 = POSES["at_bolt1"]["q"]
+        assert state["target"] == pytest.approx(bolt1) or state["q"] == pytest.approx(bolt1), state
+    finally:
+        await ur.close()
 
 
 async def test_selftest_passes(ur: UrRtde) -> None:

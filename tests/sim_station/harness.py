@@ -30,7 +30,9 @@ from common.model import Value
 from common.process import free_port
 from common.zenoh_config import zenoh_config
 from common.zenohbus import ZenohBus
-from deploy.local.simworld import SimWorld
+from deploy.local.simworld import SimWorld, cancel_until_done
+from hubs.protocols.ur import COMMAND_PORT
+from hubs.sim.cell import RobotLink
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND_PERIOD_S = 0.1
@@ -56,6 +58,7 @@ class SimCell:
         self._tasks: list[asyncio.Task[None]] = []
         self._seq = 0
         self._changed = asyncio.Event()
+        self.longest_command_gap = 0.0  # s between two rounds of commands, the longest so far
 
     async def __aenter__(self) -> SimCell:
         self._bus = ZenohBus(zenoh_config("peer", listen=[f"tcp/127.0.0.1:{self.port}"],
@@ -98,11 +101,7 @@ class SimCell:
                 with contextlib.suppress(ProcessLookupError):
                     process.kill()
                 await process.wait()
-        for task in self._tasks:
-            task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await cancel_until_done(self._tasks)
         if self.world is not None:
             await self.world.stop()
         if self._bus is not None:
@@ -122,10 +121,16 @@ class SimCell:
         self._bus.publish(self.keys.cmd(resource), codec.encode_command(message))
 
     async def _send_commands(self) -> None:
+        last = time.monotonic()
         while True:
             for resource, values in self.commands.items():
                 if values:
                     self._publish(resource)
+            # Kept for failure messages: beyond the hubs' command timeout (1 s), a hub in its safe state
+            # is right, the test process (the controller here) having been starved.
+            now = time.monotonic()
+            self.longest_command_gap = max(self.longest_command_gap, now - last)
+            last = now
             await asyncio.sleep(COMMAND_PERIOD_S)
 
     async def _record(self) -> None:
@@ -163,10 +168,26 @@ class SimCell:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise AssertionError(f"{path} did not become {value!r} within {timeout} s; it is "
-                                     f"{self.values.get(path)!r}, trace {self.trace(path)}; now: {self.snapshot()}")
+                                     f"{self.values.get(path)!r}, trace {self.trace(path)}; now: {self.snapshot()}; "
+                                     f"longest gap between commands {self.longest_command_gap:.2f} s")
             self._changed.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._changed.wait(), min(remaining, 0.5))
+
+    async def robot_stands_at(self, resource: str, pose: str) -> bool:
+        """Whether the simulated robot `resource` stands at `pose` now: every joint within the driver's
+        tolerance of the pose's target, asked of the fake controller itself (its command port, as the
+        world's flange coupling asks), not of the hub."""
+        assert self.world is not None
+        link = RobotLink(self.world.server_of[resource].address, COMMAND_PORT)
+        try:
+            q = await link.joints()
+        finally:
+            link.close()
+        assert q is not None, f"the fake controller of {resource} does not answer on its command port"
+        target = self.world.overrides[resource]["poses"][pose]["q"]
+        tolerance = float(self.world.devices[resource].params.get("joint_tolerance", 0.01))
+        return max(abs(a - b) for a, b in zip(q, target, strict=True)) <= tolerance
 
     def snapshot(self) -> dict[str, Any]:
         return {p: v for p, v in sorted(self.values.items()) if not p.startswith(("agv.", "human."))}
