@@ -41,7 +41,7 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,6 +51,7 @@ from common.config import DeviceConfig, StationConfig, load_station
 from common.keys import Keys
 from common.messages import Codec
 from common.model import Model
+from common.tasks import cancel_and_wait
 from common.zenohbus import ZenohBus
 from hubs.factory import effective_mode
 from hubs.protocols.coupler import TOOLS
@@ -65,25 +66,7 @@ log = logging.getLogger("statehub.simworld")
 
 READY_TIMEOUT_S = 20.0
 STOP_GRACE_S = 3.0
-RECANCEL_S = 0.5
-
-
-async def cancel_until_done(tasks: Iterable[asyncio.Task[Any]]) -> None:
-    """Cancel `tasks` and wait until every one has ended, its outcome taken.
-
-    A cancellation can be lost: Python 3.11's `asyncio.wait_for`, in our code or inside a library
-    (pymodbus), returns a result that arrived together with the cancellation, and a polling loop then
-    goes on. Awaiting such a task once would wait forever (a stuck `hubctl up`, a hung test), so a task
-    still running after `RECANCEL_S` is cancelled again."""
-    tasks = list(tasks)
-    pending = {task for task in tasks if not task.done()}
-    while pending:
-        for task in pending:
-            task.cancel()
-        _done, pending = await asyncio.wait(pending, timeout=RECANCEL_S)
-    for task in tasks:
-        if not task.cancelled():
-            task.exception()  # taken, so that asyncio does not log it as never retrieved
+TASKS_END_S = 10.0  # for the world's tasks to end once cancelled (pymodbus's wait_for may swallow a cancel)
 
 
 Say = Callable[[str], object]
@@ -235,7 +218,7 @@ class SimWorld:
 
     async def stop(self) -> None:
         tasks, self._tasks = self._tasks, []
-        await cancel_until_done(tasks)
+        await cancel_and_wait(tasks, TASKS_END_S, log)
         if self._bus is not None:
             with contextlib.suppress(Exception):
                 await self._bus.close()

@@ -28,9 +28,10 @@ from common.holder import declare_holder
 from common.messages import Codec, MessageError
 from common.model import Value
 from common.process import free_port
+from common.tasks import cancel_and_wait
 from common.zenoh_config import zenoh_config
 from common.zenohbus import ZenohBus
-from deploy.local.simworld import SimWorld, cancel_until_done
+from deploy.local.simworld import TASKS_END_S, SimWorld
 from hubs.protocols.ur import COMMAND_PORT
 from hubs.sim.cell import RobotLink
 
@@ -101,7 +102,7 @@ class SimCell:
                 with contextlib.suppress(ProcessLookupError):
                     process.kill()
                 await process.wait()
-        await cancel_until_done(self._tasks)
+        await cancel_and_wait(self._tasks, TASKS_END_S)
         if self.world is not None:
             await self.world.stop()
         if self._bus is not None:
