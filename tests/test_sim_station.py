@@ -16,10 +16,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
+import socket
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -30,6 +33,7 @@ from deploy.local.simworld import SimWorld
 from deploy.local.station import Options, run_station
 from hubs.factory import build_drivers, load_overrides
 from hubs.protocols.coupler import TOOLS
+from hubs.protocols.ur import DASHBOARD_PORT, RTDE_PORT
 from hubs.sim.cell import Walker
 from hubs.sim.toolchanger_modbus import ToolChangerPhysics
 from hubs.sim.ur_poses import check_pose_table, pose_table
@@ -140,6 +144,25 @@ async def _selftest(hub: str, world: SimWorld) -> tuple[int, str]:
     return process.returncode or 0, out.decode(errors="replace")
 
 
+@contextlib.contextmanager
+def reserved(*addresses: tuple[str, int]) -> Iterator[None]:
+    """TCP addresses bound but not listening while inside: nobody else can serve them, and a client is refused.
+    (No SO_REUSEADDR: with it, a server that sets it, as asyncio's do, could still bind the address.) An address
+    that cannot be bound (a connection of its own in TIME_WAIT) stays unreserved; the fake UR's scan of the
+    addresses from a place of its own already makes another run taking this one unlikely."""
+    sockets = []
+    try:
+        for address in addresses:
+            sock = socket.socket()
+            sockets.append(sock)
+            with contextlib.suppress(OSError):
+                sock.bind(address)
+        yield
+    finally:
+        for sock in sockets:
+            sock.close()
+
+
 @pytest.mark.slow
 async def test_selftest_passes_for_every_hub_with_the_simulators_and_fails_when_one_is_down(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -153,7 +176,11 @@ async def test_selftest_passes_for_every_hub_with_the_simulators_and_fails_when_
         down = {"pi-rsp": "coupler-rsp", "mircom": "mir-mir", "ur10": "ur-ur", "rfidcam": "camera-cam"}
         for process in down.values():
             await world.processes[process].stop()
-        results = await asyncio.gather(*(_selftest(hub, world) for hub in down))
+        # The fake UR's fixed ports on its own loopback address: kept bound (not listening: a connection is
+        # refused, as by a robot that is off) so that another test's fake cannot take the address meanwhile.
+        with reserved((world.processes["ur-ur"].address, RTDE_PORT), (world.processes["ur-ur"].address,
+                                                                      DASHBOARD_PORT)):
+            results = await asyncio.gather(*(_selftest(hub, world) for hub in down))
         for (hub, process), (code, out) in zip(down.items(), results, strict=True):
             assert code != 0, f"self-test of {hub} passed with its simulator {process} down:\n{out}"
             assert "FAIL" in out

@@ -6,10 +6,11 @@ Linux)::
 
     python -m hubs.sim.ur_rtde_fake --host 127.0.0.2|auto [--command-port 30099] [--rate 125]
 
-It prints ``ready HOST`` once every port listens (``auto``: the first 127.0.N.2, N from
-100, whose ports are free).  The wire format is in ``hubs.sim.ur_rtde_codec``, the robot
-(motion, modes, the emulated control script) in ``hubs.sim.ur_robot``, its kinematics in
-``hubs.sim.ur_kinematics``; this module holds the servers.  Served:
+It prints ``ready HOST`` once every port listens (``auto``: a 127.0.N.2, N in 100..199,
+whose ports are free, scanned from a place given by the process id).  The wire format is in
+``hubs.sim.ur_rtde_codec``, the robot (motion, modes, the emulated control script) in
+``hubs.sim.ur_robot``, its kinematics in ``hubs.sim.ur_kinematics``; this module holds the
+servers.  Served:
 
 * **RTDE** (protocol version 2, also answers version 1): request protocol version
   ``V``, get controller version ``v`` (reports 5.11.1), setup outputs ``O`` (frequency
@@ -61,6 +62,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import struct
 import sys
 import time
@@ -405,8 +407,14 @@ class FakeController:
 
 
 async def _start(args: argparse.Namespace) -> FakeController:
-    """The started controller; with `--host auto` on the first 127.0.N.2 whose ports are free."""
-    hosts = [f"127.0.{n}.2" for n in AUTO_HOSTS] if args.host == "auto" else [args.host]
+    """The started controller; with `--host auto` on a 127.0.N.2 whose ports are free."""
+    if args.host == "auto":
+        # Scanned from a place of this process's own: the first free address would be the one another
+        # run's fake just left, and whoever still dials it (a hub of that run) would reach this one.
+        start = os.getpid() % len(AUTO_HOSTS)
+        hosts = [f"127.0.{n}.2" for n in (*AUTO_HOSTS[start:], *AUTO_HOSTS[:start])]
+    else:
+        hosts = [args.host]
     for host in hosts:
         robot = FakeRobot(
             robot_mode=POWER_OFF if args.powered_off else RUNNING,
@@ -429,7 +437,8 @@ async def _start(args: argparse.Namespace) -> FakeController:
             await controller.stop()
             if len(hosts) == 1:
                 raise
-    raise OSError(f"no free loopback address for a fake UR controller in {hosts[0]} .. {hosts[-1]} "
+    raise OSError(f"no free loopback address for a fake UR controller in 127.0.{AUTO_HOSTS[0]}.2 .. "
+                  f"127.0.{AUTO_HOSTS[-1]}.2 "
                   f"(ports {args.rtde_port}, {args.dashboard_port}, {args.command_port})")
 
 
@@ -467,8 +476,8 @@ PLUGIN = SimulatorPlugin("fake UR controller", server=_server,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Fake UR10 controller: RTDE, dashboard and a command side channel")
     parser.add_argument("--host", default="127.0.0.2",
-                        help="loopback address to bind (127.0.0.2, 127.0.0.3, ...); auto: the first free 127.0.N.2, "
-                             f"N from {AUTO_HOSTS[0]}")
+                        help="loopback address to bind (127.0.0.2, 127.0.0.3, ...); auto: a free 127.0.N.2, "
+                             f"N in {AUTO_HOSTS[0]}..{AUTO_HOSTS[-1]}")
     parser.add_argument("--rtde-port", type=int, default=RTDE_PORT)
     parser.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT)
     parser.add_argument("--command-port", type=int, default=COMMAND_PORT)
