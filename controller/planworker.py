@@ -64,8 +64,9 @@ class Ready:
 
 
 def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Connection, answers: Connection,
-            preemption: Preemption) -> None:
-    """Stream the answers to one request until the portfolio is done or a newer request waits."""
+            preemption: Preemption, graveyard: list[object]) -> None:
+    """Stream the answers to one request until the portfolio is done or a newer request waits. What a
+    preempted search left behind (`graveyard`) is freed once this request has its first answer."""
     budget = live_budget(limits.first_seconds, limits.improve_seconds, limits.hold_seconds, stop=requests.poll)
     found = anytime_answers(planner, request, budget)
     first = True
@@ -77,6 +78,7 @@ def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Co
                 return
             answers.send(Answer(request.generation, *item))
             first = False
+            graveyard.clear()
             if requests.poll():
                 return
     finally:
@@ -104,6 +106,9 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
     quiet_collector()
     answers.send(Ready(time.perf_counter() - began))
     served = 0
+    # A preempted search's frames (its open list, its closed states) and dropped tables: freeing them costs
+    # up to ~150 ms, which would come before the new request's first answer; they are kept until it is sent.
+    graveyard: list[object] = []
     while True:
         if served % COLLECT_EVERY == COLLECT_EVERY - 1 and not requests.poll():
             gc.collect()  # between requests, while none waits: the generous thresholds leave cycles behind
@@ -115,10 +120,11 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
             return
         preempted = False
         try:
-            _answer(planner, request, limits, requests, answers, preemption)
-        except Preempted:
-            # Wherever it stopped, the A* tables under construction may be half built: dropped.
-            planner.forget_partial_work()
+            _answer(planner, request, limits, requests, answers, preemption, graveyard)
+        except Preempted as interrupted:
+            # Wherever it stopped, the A* tables under construction may be half built: dropped. The
+            # traceback holds the interrupted frames and their locals: into the graveyard with the tables.
+            graveyard += [interrupted, *planner.forget_partial_work()]
             preempted = True
         except Exception as exc:  # a planner bug must not stop the station: the controller reports it
             log.exception("planner failed")

@@ -135,17 +135,20 @@ class Planner:
             self._heuristics.popitem(last=False)
         return h
 
-    def forget_partial_work(self) -> None:
+    def forget_partial_work(self) -> tuple[object, ...]:
         """After a search was interrupted at an arbitrary point (a preempted improvement): drop every table
         such a search builds or extends in place (A*'s projections and heuristics, the symbolic member), so
         nothing half built is used again. The step system, race answers, relaxed model and plan memory are
-        only ever replaced whole, never left half written, and stay warm."""
-        self._abstractions.clear()
-        self._heuristics.clear()
-        self._symbolic.clear()
+        only ever replaced whole, never left half written, and stay warm.
+
+        Returns the dropped tables: freeing them takes tens of milliseconds, which the caller spends when
+        it has time (after its next first answer), not now."""
+        dropped = (self._abstractions, self._heuristics, self._symbolic)
+        self._abstractions, self._heuristics, self._symbolic = {}, OrderedDict(), {}
         # Called by the single-threaded planner worker only: a lock still held was the interrupted search's.
         if self._lock.locked():
             self._lock.release()
+        return dropped
 
     def clear_cache(self) -> None:
         with self._lock:

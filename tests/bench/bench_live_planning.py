@@ -46,8 +46,12 @@ def quantile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))] if ordered else float("nan")
 
 
-def first_answers(recording: Path) -> list[tuple[float, float, int]]:
-    """(request -> first answer on the controller's clock in ms, the planner's own ms, goals) per request."""
+Answered = tuple[float, float, int, str, str]  # latency ms, the planner's own ms, goals, why asked, member
+
+
+def first_answers(recording: Path) -> list[Answered]:
+    """(request -> first answer on the controller's clock in ms, the planner's own ms, goals, the request's
+    reason, the member that answered) per request."""
     asked: dict[str, float] = {}
     found = []
     with sqlite3.connect(recording) as db:
@@ -58,7 +62,8 @@ def first_answers(recording: Path) -> list[tuple[float, float, int]]:
                 continue
             record = msgspec.msgpack.decode(data, type=PlanRecord)
             if record.answer == "first" and record.goals and key in asked:
-                found.append((1000 * (t - asked.pop(key)), record.ms, len(record.goals)))
+                found.append((1000 * (t - asked.pop(key)), record.ms, len(record.goals), record.reason,
+                              record.member))
     return found
 
 
@@ -71,7 +76,7 @@ def main() -> None:
     hubctl = Path(sys.executable).with_name("hubctl")
     latencies: list[float] = []
     own: list[float] = []
-    worst: tuple[float, int, int] = (0.0, 0, 0)
+    slowest: list[tuple[Answered, int]] = []
     finished = 0
     seeds = seeds_of(args.seeds)
     with tempfile.TemporaryDirectory(prefix="bench-live-") as tmp:
@@ -89,19 +94,22 @@ def main() -> None:
             finished += bool(summary and summary[-1] == "finished")
             recordings = sorted(runs.glob("*.sqlite"))
             answers = first_answers(recordings[-1]) if recordings else []
-            for latency, planner_ms, goals in answers:
-                latencies.append(latency)
-                own.append(planner_ms)
-                if latency > worst[0]:
-                    worst = (latency, goals, seed)
+            for answer in answers:
+                latencies.append(answer[0])
+                own.append(answer[1])
+                slowest.append((answer, seed))
             seed_worst = max((a[0] for a in answers), default=float("nan"))
             print(f"seed {seed:3d}: {text} (wall {wall:.1f} s); {len(answers)} plan requests, "
                   f"first answer max {seed_worst:.1f} ms", flush=True)
     print(f"\n{finished} of {len(seeds)} runs finished")
     print(f"{len(latencies)} plan requests: request -> first answer (controller's clock) "
           f"p50 {quantile(latencies, 0.5):.1f} ms, p99 {quantile(latencies, 0.99):.1f} ms, "
-          f"max {max(latencies, default=float('nan')):.1f} ms (the max: {worst[1]} goals, seed {worst[2]}); "
+          f"max {max(latencies, default=float('nan')):.1f} ms; "
           f"the planner's own time p50 {quantile(own, 0.5):.1f} ms, p99 {quantile(own, 0.99):.1f} ms")
+    print("the slowest first answers:")
+    for (latency, planner_ms, goals, reason, member), seed in sorted(slowest, reverse=True)[:5]:
+        print(f"  {latency:6.1f} ms ({planner_ms:.1f} ms in the planner): {goals} goals, {reason}, by {member}, "
+              f"seed {seed}")
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
