@@ -11,10 +11,12 @@ import argparse
 import asyncio
 import faulthandler
 import logging
+import random
 import signal
 import socket
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from .config import ConfigError, NetworkConfig, StationConfig
 from .model import ModelError
@@ -66,9 +68,37 @@ def network(config: StationConfig, process: str, loopback_port: int | None) -> N
     return config.network_for(process) if loopback_port is None else config.loopback_network(process, loopback_port)
 
 
+EPHEMERAL_RANGE_FILE = Path("/proc/sys/net/ipv4/ip_local_port_range")
+LOWEST_CHOSEN_PORT = 10_000
+
+
+def _ephemeral_ports() -> range:
+    """The ports the kernel hands out by itself (bind to port 0, the local end of every outgoing connection)."""
+    try:
+        low, high = (int(v) for v in EPHEMERAL_RANGE_FILE.read_text().split())
+    except (OSError, ValueError):
+        low, high = 32768, 60999  # Linux's default
+    return range(low, high + 1)
+
+
 def free_port() -> int:
-    """A TCP port on loopback that nothing listens on now: where a station run on loopback listens."""
-    with socket.socket() as s:
+    """A TCP port on loopback that nothing listens on now: where a station run on loopback listens.
+
+    Chosen at random *below* the kernel's ephemeral range: a port the kernel picked for a bind to port 0
+    is free now, but until our process binds it (a second later, once it has started) any outgoing
+    connection on this machine may take it as its local end ("Address already in use"). Below the range
+    only another caller choosing the same port at random can."""
+    ephemeral = _ephemeral_ports()
+    candidates = range(LOWEST_CHOSEN_PORT, ephemeral.start)
+    for _ in range(50 if candidates else 0):
+        port = random.choice(candidates)
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    with socket.socket() as s:  # nothing free below the range: the kernel's choice
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
