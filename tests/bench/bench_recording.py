@@ -5,13 +5,15 @@
 The controller service of the capacity station (N nutrunners) is built but not connected: batches of
 encoded hub states are handed to its ingestion as its subscription hands them over (50 states per
 batch: 500 resources at 50 Hz arrive in 2 ms batches), and it ticks after each batch, as on a change.
-The CPU time of the whole process (the recording's writer thread included, until its last batch is
-on disk) per state ingested is the ingest capacity's inverse. Two loads: `steady` (the values never
-change: a state is recorded only when its hub's status or mirror changes) and `changing` (every state
-carries a new value: every one is recorded, the worst case). Recording on and off alternate. On a
-loaded machine the difference of the two CPU figures is noisy (the machine's load inflates CPU time by
-tens of percent from one run to the next), so the recording's own CPU is also counted directly: the
-writer thread's CPU time plus the controller thread's inside the recorder's hooks (HookClock).
+The CPU time of the controller's process per state ingested is its ingest capacity's inverse. The
+recording's writer is a process of its own (common/recording/writer.py): its CPU time, until the last
+record is on disk, is not the controller's and is counted apart, as is the sum of both. Two loads:
+`steady` (the values never change: a state is recorded only when its hub's status or mirror changes)
+and `changing` (every state carries a new value: every one is recorded, the worst case). Recording on
+and off alternate, in turn first. On a loaded machine the difference of the two CPU figures is noisy
+(the machine's load inflates CPU time by tens of percent from one run to the next), so the recording's
+own CPU is also counted directly: the controller thread's inside the recorder's hooks (HookClock, what
+it costs the controller) and the writer process's.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ HOOKS = ("ingested", "liveliness", "ticked", "request", "command", "plan_request
 
 
 class HookClock:
-    """The controller thread's CPU time inside the recorder's hooks (the writer thread's is counted apart):
+    """The controller thread's CPU time inside the recorder's hooks (the writer process's is counted apart):
     what recording costs measured directly, steadier on a loaded machine than on minus off."""
 
     def __init__(self, recorder: object) -> None:
@@ -62,9 +64,10 @@ class HookClock:
 
 
 async def cpu_per_state(directory: Path, resources: int, states: int, *, record: bool,
-                        changing: bool) -> tuple[float, float]:
-    """CPU seconds per state ingested (and ticked on), recording or not, and those of the recording's own
-    code: the writer thread and the controller thread's time in the recorder's hooks."""
+                        changing: bool) -> tuple[float, float, float, float]:
+    """CPU seconds per state ingested (and ticked on) of the controller's process, recording or not, and
+    those of the recording's own code: the controller thread's in the recorder's hooks, the writer process's
+    (without its start); and the seconds the writer process took to start (Python, imports)."""
     config, model = load_station(write_station(directory, f"rec_{os.getpid()}", resources))
     bus = await MemoryBus(MemoryHub()).open()  # commands are published into it, heard by no one
     service = ControllerService(config, model, bus, db=str(directory / "ctl.sqlite"),
@@ -94,26 +97,31 @@ async def cpu_per_state(directory: Path, resources: int, states: int, *, record:
         service._ingest_batch(batch, routes)
         service._tick()
     writer = service.recorder.sink
-    service.recorder.finish("stopped")  # waits for the writer thread: its CPU is counted
+    service.recorder.finish("stopped")  # waits for the writer process: it reports its CPU time
     spent = time.process_time() - began
-    own_s = getattr(writer, "thread_cpu_s", 0.0) + hooks.seconds
+    writer_s = getattr(writer, "process_cpu_s", 0.0)
+    start_s = getattr(writer, "process_start_cpu_s", 0.0)
     for task in list(service._solving):
         task.cancel()
     service.store.close()
     await bus.close()
-    return spent / (len(batches) * BATCH), own_s / (len(batches) * BATCH)
+    count = len(batches) * BATCH
+    return spent / count, hooks.seconds / count, (writer_s - start_s) / count, start_s
 
 
-def measure(resources: int, seconds: float, rounds: int) -> dict[tuple[str, bool], tuple[float, float]]:
-    """Median CPU per state for each (load, recording), the process's and the recording's own."""
+Figures = dict[tuple[str, bool], list[tuple[float, float, float, float]]]
+
+
+def measure(resources: int, seconds: float, rounds: int) -> Figures:
+    """CPU per state for each (load, recording), each round: the controller process's, its hooks', the writer's."""
     os.environ[RESOURCES_ENV] = str(resources)
     states = int(resources * HUB_RATE_HZ * seconds)
-    results: dict[tuple[str, bool], list[tuple[float, float]]] = {}
+    results: Figures = {}
     with tempfile.TemporaryDirectory(prefix="bench_recording_") as tmp:
         os.environ[RECORDING_DIR_ENV] = str(Path(tmp) / "runs")
-        for _ in range(rounds):
+        for round_ in range(rounds):
             for load in ("steady", "changing"):
-                for record in (False, True):
+                for record in (False, True) if round_ % 2 == 0 else (True, False):
                     directory = Path(tempfile.mkdtemp(dir=tmp))
                     cost = asyncio.run(cpu_per_state(directory, resources, states, record=record,
                                                      changing=load == "changing"))
@@ -121,23 +129,32 @@ def measure(resources: int, seconds: float, rounds: int) -> dict[tuple[str, bool
         sizes = sorted(p.stat().st_size for p in (Path(tmp) / "runs").glob("*.sqlite"))
     print(f"    recordings written: {len(sizes)}, {sizes[0] / 1024:,.0f} to {sizes[-1] / 1024:,.0f} kB "
           f"for {seconds:.0f} s of states each")
-    return {key: (statistics.median(v[0] for v in values), statistics.median(v[1] for v in values))
-            for key, values in results.items()}
+    return results
 
 
 def report(resources: int, seconds: float, rounds: int, limit: float) -> None:
-    figures = measure(resources, seconds, rounds)
+    load_before = os.getloadavg()[0]
+    results = measure(resources, seconds, rounds)
     print(f"    {resources} resources x {HUB_RATE_HZ:.0f} Hz, {seconds:.0f} s of states, batches of {BATCH}, a tick "
-          f"after each; median of {rounds} rounds; capacity = states per CPU second (writer thread included)")
+          f"after each; medians of {rounds} rounds, load average {load_before:.1f} -> {os.getloadavg()[0]:.1f}")
+    print("    capacity = states per CPU second of the controller's process; the recording's writer process "
+          "is counted apart")
     for load in ("steady", "changing"):
-        (off, _), (on, own) = figures[load, False], figures[load, True]
+        offs, ons = results[load, False], results[load, True]
+        off = statistics.median(r[0] for r in offs)
+        on, hooks, writer, start = (statistics.median(r[i] for r in ons) for i in range(4))
+        paired = statistics.median(a[0] / b[0] for a, b in zip(offs, ons, strict=True))  # rounds alternate
+        both = statistics.median(r[0] + r[2] for r in ons)
         cost = 1 - off / on
         print(f"    {load:<9} off {1 / off:>9,.0f} states/cpu-s   on {1 / on:>9,.0f} states/cpu-s   "
               f"on/off x{off / on:.3f}: recording costs {100 * cost:.1f} % "
               f"(target < {100 * limit:.0f} %) {'ok' if cost < limit else 'MISSED'}; "
-              f"per state {1e6 * off:.1f} -> {1e6 * on:.1f} us")
-        print(f"    {'':<9} the recording's own CPU (writer thread + hooks on the controller thread): "
-              f"{1e6 * own:.2f} us per state = {100 * own / off:.1f} % of the off figure")
+              f"per state {1e6 * off:.1f} -> {1e6 * on:.1f} us (round by round: {100 * (1 - paired):.1f} %)")
+        print(f"    {'':<9} counted directly: the recorder's hooks on the controller thread {1e6 * hooks:.2f} us per "
+              f"state = {100 * hooks / off:.1f} % of the off figure; the writer process {1e6 * writer:.2f} us "
+              f"per state (another {100 * writer / off:.1f} %, on another core; {1e3 * start:.0f} ms to start)")
+        print(f"    {'':<9} counting the writer process's CPU as the controller's too: {1e6 * both:.1f} us per "
+              f"state, x{off / both:.3f} of the capacity recording off ({100 * (1 - off / both):.1f} %)")
 
 
 def main() -> None:
