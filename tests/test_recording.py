@@ -109,6 +109,18 @@ def test_a_writer_process_that_ends_early_drops_and_counts_the_rest_and_the_call
     assert w.dropped >= 100 and "its writer process ended" in caplog.text
 
 
+def test_a_record_that_cannot_be_encoded_is_dropped_and_counted_and_the_rest_written(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    w = writer(tmp_path)
+    w.put(0.0, RecordKind.TICK, "", TickRecord())
+    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": object()}))  # type: ignore[dict-item]
+    w.put(1.0, RecordKind.TICK, "", TickRecord())
+    w.close()
+    assert w.dropped == 1 and "a state record of 'nr' cannot be encoded" in caplog.text
+    with open_run(w.path) as run:
+        assert [r.t for r in run.events()] == [0.0, 1.0] and run.meta.dropped == 1
+
+
 KILLED_CONTROLLER = """
 import os, signal, sys
 from common.recording.schema import RecordKind, RunMeta, TickRecord

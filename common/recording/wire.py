@@ -45,7 +45,14 @@ class RecordBuffer:
         return len(self._buffer)
 
     def append(self, record: tuple[float, str, str, Any]) -> None:
-        self._encode_into(record, self._buffer, -1)
+        """Raises TypeError (or ValueError, OverflowError) for what cannot be encoded, leaving the buffer as it was."""
+        buffer = self._buffer
+        size = len(buffer)
+        try:
+            self._encode_into(record, buffer, -1)
+        except (TypeError, ValueError, OverflowError):
+            del buffer[size:]  # msgspec leaves what it wrote before it failed
+            raise
         self.count += 1
 
     def take(self) -> bytearray:

@@ -107,7 +107,12 @@ class RecordingWriter:
         if self._waiting > self.backlog_bytes or self._gone:
             self._drop(1)
             return
-        self._records.append((t, kind, key, data))
+        try:
+            self._records.append((t, kind, key, data))
+        except (TypeError, ValueError, OverflowError):  # a bug of ours must not stop the controller
+            log.exception("recording %s: a %s record of %r cannot be encoded; dropped", self.path, kind, key)
+            self.dropped += 1
+            return
         if len(self._records) >= CHUNK_BYTES or time.monotonic() >= self._due:
             self.flush()
 
