@@ -5,12 +5,12 @@ object kept) and `ingested` appends an ingested batch as the controller took it.
 CHUNK_BYTES) the buffer goes to the writer process (writer_process.py) through a pipe written without
 blocking. That process decides what of each batch is stored, encodes it and does all the SQLite work.
 
-Why a process: with a writer thread, recording cost the controller 7.6 % of its ingest capacity at 500
-resources x 50 Hz with steady values and 12.5 % with every state changing, while the writer thread and
-the hooks themselves counted only 2.4 % and 4.4 % (tests/bench/bench_recording.py). The rest was the
-records the controller kept for the writer (garbage collections: ~130 more per 100,000 states, one of
-them a full one of 45-95 ms), the GIL handed to the writer thread whenever SQLite stepped a row, and the
-per-state Python deciding what of a batch to keep. Now none of those run in the controller's process.
+Why a process: with a writer thread, recording cost the controller more of its ingest capacity than the
+writer thread and the hooks themselves counted (tests/bench/bench_recording.py, README: with every state
+changing, 6-8 % against 4-4.6 % counted). The rest came from the records the controller kept for the
+writer (per 100,000 states, 128 more young collections and a full one of 41 ms over the whole heap),
+from switching to the writer thread and back, and from the per-state Python deciding what of a batch to
+keep. None of those run in the controller's process now: its share is ~1.5 %.
 
 If the writer process is slower than the records come (a disk that does not answer), what the pipe
 cannot take waits here, up to `backlog_bytes`; further records are dropped and counted (`RunMeta.dropped`,
