@@ -66,13 +66,11 @@ def serve(stream: BinaryIO, settings: Settings) -> None:
     try:
         while True:
             header = _read(stream, HEADER.size)
-            if header is None:
+            kind, length = HEADER.unpack(header) if header is not None else (0, 0)
+            payload = _read(stream, length) if header is not None else None
+            if payload is None:  # the end of the pipe (or of a message cut short) without CLOSE
                 log.warning("recording %s: the controller went away without closing it; what it sent is written",
                             files.current)
-                break
-            kind, length = HEADER.unpack(header)
-            payload = _read(stream, length)
-            if payload is None:
                 break
             if kind == RECORDS:
                 files.write(rows_of(payload, states, encode))
