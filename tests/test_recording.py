@@ -1,8 +1,12 @@
-"""Run recordings (common/recording): written off the caller's thread, bounded, read back in order."""
+"""Run recordings (common/recording): written by a process of their own, bounded, read back in order."""
 
 from __future__ import annotations
 
-import threading
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -51,7 +55,7 @@ def test_a_run_beyond_max_bytes_goes_on_in_part_files_read_as_one_run(tmp_path: 
     for batch in range(6):  # each batch is one transaction; the size is checked after each
         for i in range(400):
             w.put(batch * 400 + i, RecordKind.STATE, f"r{i % 7}", StateRecord(values={"r.x": "x" * 40}))
-        w._write_batch(w._take())  # the writer thread is asleep (flush_s): write the batch now
+        w.flush()  # one message to the writer process, one transaction (flush_s would wait a minute)
     w.close()
 
     parts = sorted(tmp_path.glob("*.sqlite"))
@@ -75,28 +79,83 @@ def test_the_directory_keeps_at_most_keep_files_deleting_the_oldest(tmp_path: Pa
 
 
 def test_a_stuck_disk_never_blocks_put_and_what_overflows_is_counted(tmp_path: Path) -> None:
-    w = writer(tmp_path, queue_limit=100)
-    disk_free = threading.Event()
-    stuck = threading.Event()
-    write = w._write_batch
-
-    def slow_disk(batch: list) -> None:  # type: ignore[type-arg]
-        if batch:
-            stuck.set()
-            disk_free.wait()
-        write(batch)
-
-    w._write_batch = slow_disk  # type: ignore[method-assign]
-    w.put(0.0, RecordKind.TICK, "", TickRecord())
-    assert stuck.wait(10), "the writer thread took the first batch"
-    for i in range(1000):  # the writer is stuck: every put returns at once, the queue stays bounded
-        w.put(float(i), RecordKind.TICK, "", TickRecord())
-    assert len(w._queue) == 100 and w.dropped == 900
-    disk_free.set()
+    w = writer(tmp_path, backlog_bytes=64 * 1024, flush_s=60.0)
+    big = StateRecord(values={"r.x": "x" * 1000})
+    os.kill(w._process.pid, signal.SIGSTOP)  # the writer process stuck, as on a disk that does not answer
+    try:  # every put returns (a blocked one would hang the test): the pipe fills, then the backlog, then drops
+        for i in range(3000):
+            w.put(float(i), RecordKind.STATE, "r", big)
+            if i % 10 == 9:
+                w.flush()
+        assert w.dropped > 1000 and w._waiting <= 64 * 1024 + 10 * 1100
+    finally:
+        os.kill(w._process.pid, signal.SIGCONT)
     w.close()
+    with open_run(w.path) as run:  # nothing lost but what was counted
+        assert run.meta.dropped == w.dropped
+        assert sum(1 for _ in run.events()) == 3000 - w.dropped
+
+
+def test_a_writer_process_that_ends_early_drops_and_counts_the_rest_and_the_caller_goes_on(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    w = writer(tmp_path)
+    w.put(0.0, RecordKind.TICK, "", TickRecord())
+    w._process.kill()  # as if the disk were gone: the process stops
+    w._process.wait()
+    for i in range(100):
+        w.put(float(i), RecordKind.TICK, "", TickRecord())
+        w.flush()
+    w.close()
+    assert w.dropped >= 100 and "its writer process ended" in caplog.text
+
+
+def test_a_record_that_cannot_be_encoded_is_dropped_and_counted_and_the_rest_written(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    w = writer(tmp_path)
+    w.put(0.0, RecordKind.TICK, "", TickRecord())
+    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": object()}))  # type: ignore[dict-item]
+    w.put(1.0, RecordKind.TICK, "", TickRecord())
+    w.close()
+    assert w.dropped == 1 and "a state record of 'nr' cannot be encoded" in caplog.text
     with open_run(w.path) as run:
-        assert run.meta.dropped == 900
-        assert sum(1 for _ in run.events()) == 101
+        assert [r.t for r in run.events()] == [0.0, 1.0] and run.meta.dropped == 1
+
+
+KILLED_CONTROLLER = """
+import os, signal, sys
+from common.recording.schema import RecordKind, RunMeta, TickRecord
+from common.recording.writer import RecordingWriter
+w = RecordingWriter(sys.argv[1], RunMeta(station="s", mode="service", started=1000.0), max_bytes=1 << 20, keep=3)
+for i in range(500):
+    w.put(float(i), RecordKind.TICK, "", TickRecord())
+w.update_meta(requested=["Tighten"])
+w.flush()
+print(w.path, w._process.pid, flush=True)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def _running(pid: int) -> bool:
+    """Not ours to wait for (the killed process's child): gone, or a zombie nobody reaped yet."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+def test_a_controller_killed_with_kill_9_leaves_a_readable_recording_of_what_it_handed_over(tmp_path: Path) -> None:
+    killed = subprocess.run([sys.executable, "-c", KILLED_CONTROLLER, str(tmp_path)], capture_output=True, text=True,
+                            timeout=60)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    name, pid = killed.stdout.split()
+    path = Path(name)
+    deadline = time.monotonic() + 30
+    while _running(int(pid)) and time.monotonic() < deadline:  # its writer process reads to the pipe's end,
+        time.sleep(0.05)                                          # writes, exits
+    assert not path.with_name(path.name + "-wal").exists()  # completed: one self-contained file
+    with open_run(path) as run:
+        assert run.meta.outcome == "running" and run.meta.requested == ["Tighten"]  # never closed
+        assert [r.t for r in run.events()] == [float(i) for i in range(500)]
 
 
 def test_an_ingested_batch_is_one_row_read_back_as_one_state_record_per_resource(tmp_path: Path) -> None:

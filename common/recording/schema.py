@@ -17,9 +17,10 @@ see reader.py.
 What each kind records (key: data):
 
 * `states` ("": StatesRecord): one ingested batch: the measured values the controller took that changed,
-  and the hub status and mirrored command seq of each resource whose status changed or whose values did.
-  One row per batch, encoded once: at 500 resources x 50 Hz, a row per state cost the controller 25 %
-  of its ingest capacity. The reader expands it into one `state` record per resource (below).
+  and the hub status and mirrored command seq of each resource whose status changed or whose values did
+  (StatesFilter, run by the writer process). One row per batch: at 500 resources x 50 Hz, a row per state
+  cost the controller 25 % of its ingest capacity. The reader expands it into one `state` record per
+  resource (below).
 * `state` (resource: StateRecord): what a reader yields for each resource of a `states` row (format 1
   files and saved replays store these rows themselves).
 * `command` (resource: CommandRecord): a command sent with new values (the first one too), with its seq.
@@ -130,6 +131,36 @@ HubState = tuple[str, str, str, int | None]  # resource, status, detail, mirrore
 class StatesRecord(msgspec.Struct, array_like=True):
     values: dict[str, Value]  # by variable path: the batch's changed ones
     hubs: list[HubState]  # of the resources whose status changed or whose values did, in arrival order
+
+
+class _ResourceOf(dict[str, str]):
+    """A variable path's resource (`nr.run_m` -> `nr`), worked out once per path."""
+
+    def __missing__(self, path: str) -> str:
+        resource = self[path] = path.split(".", 1)[0]
+        return resource
+
+
+class StatesFilter:
+    """What of each ingested batch, taken in order, a `states` row keeps: the values that changed, and the
+    hub state of each resource whose hub state changed or whose values did (None: nothing to store)."""
+
+    def __init__(self) -> None:
+        self._known: dict[str, HubState] = {}
+        self._resource_of = _ResourceOf()
+
+    def row(self, changed: dict[str, Value], hub_states: list[HubState]) -> StatesRecord | None:
+        known = self._known
+        moved = {self._resource_of[path] for path in changed} if changed else ()
+        hubs = []
+        for item in hub_states:
+            resource = item[0]
+            if known.get(resource) != item:
+                known[resource] = item
+                hubs.append(item)
+            elif resource in moved:
+                hubs.append(item)
+        return StatesRecord(changed, hubs) if changed or hubs else None
 
 
 def expand_states(batch: StatesRecord) -> list[tuple[str, StateRecord]]:

@@ -1,40 +1,62 @@
-"""Writing a run recording without ever blocking the caller.
+"""Writing a run recording without ever blocking the caller: the caller's thread appends, a process writes.
 
-`RecordingWriter.put` appends a record to a queue (a deque append: no lock, no I/O) and returns; a
-writer thread drains the queue in batches, each in one SQLite transaction. If the disk is slower than
-the records come, the queue grows up to `queue_limit` records and further ones are dropped and counted
-(`RunMeta.dropped`): the controller's tick never waits for the disk.
+`RecordingWriter.put` encodes a record in place into a buffer (wire.RecordBuffer: one msgspec call, no
+object kept) and `ingested` appends an ingested batch as the controller took it. Every `flush_s` (or
+CHUNK_BYTES) the buffer goes to the writer process (writer_process.py) through a pipe written without
+blocking. That process decides what of each batch is stored, encodes it and does all the SQLite work.
 
-A run's file is bounded by `max_bytes`: beyond it the run goes on in a next part file (the same `run`
-id, `part` + 1). The directory keeps at most `keep` recording files: the oldest are deleted, never the
-one being written.
+Why a process: with a writer thread, recording cost the controller more of its ingest capacity than the
+writer thread and the hooks themselves counted (tests/bench/bench_recording.py, README: with every state
+changing, 6-8 % against 4-4.6 % counted). The rest came from the records the controller kept for the
+writer (per 100,000 states, 128 more young collections and a full one of 41 ms over the whole heap),
+from switching to the writer thread and back, and from the per-state Python deciding what of a batch to
+keep. None of those run in the controller's process now: its share is ~1.5 %.
+
+If the writer process is slower than the records come (a disk that does not answer), what the pipe
+cannot take waits here, up to `backlog_bytes`; further records are dropped and counted (`RunMeta.dropped`,
+written at close, said in the log once): the controller never waits for the disk. `close()` hands
+everything over, has the run's end written and waits for the process. A controller killed with kill -9
+still leaves a readable recording: its writer process sees the pipe close, writes what it received and
+leaves the outcome `running`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import logging
 import os
-import re
-import sqlite3
-import threading
+import select
+import subprocess
+import sys
 import time
 import uuid
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from .schema import DDL, KIND_KEY_INDEX, SUFFIX, RecordKind, RunMeta
+from common.model import Value
+
+from .schema import HubState, RecordKind, RunMeta
+from .store import open_file, prune, run_file_name
+from .wire import CLOSE, INGESTED, META, RecordBuffer, message
+from .writer_process import Settings
 
 log = logging.getLogger("statehub.recording")
 
 RECORDING_DIR_ENV = "STATEHUB_RECORDING_DIR"  # overrides [controller.recording] dir (the test suite sets it)
-FLUSH_S = 0.25  # the writer wakes this often: a batch per wake-up
-QUEUE_LIMIT = 200_000  # records waiting for the disk before new ones are dropped
-_META = object()  # queue marker: a RunMeta update
+FLUSH_S = 0.25  # the buffer goes to the writer process at least this often
+CHUNK_BYTES = 256 * 1024  # ... or once it holds this much
+BACKLOG_BYTES = 64 * 1024 * 1024  # waiting for the writer process before new records are dropped
+PIPE_BYTES = 1024 * 1024  # asked of the kernel for the pipe (Linux's default limit for a user)
+# The writer process gets this process's sys.path, as multiprocessing's spawn does, without re-importing
+# our __main__ (the controller's or hubctl's) as spawn would.
+_BOOT = ("import json, sys; sys.path[:] = json.loads(sys.argv[1]); "
+         "from common.recording.writer_process import main; main()")
 
 
 def recording_dir(configured: str) -> Path:
@@ -42,152 +64,151 @@ def recording_dir(configured: str) -> Path:
     return Path(os.environ.get(RECORDING_DIR_ENV) or configured)
 
 
-def run_file_name(meta: RunMeta, part: int = 1) -> str:
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(meta.started))
-    station = re.sub(r"[^A-Za-z0-9_.-]", "_", meta.station) or "station"
-    suffix = "" if part == 1 else f".part{part}"
-    return f"{stamp}-{station}-{meta.run}{suffix}{SUFFIX}"
-
-
 class RecordingWriter:
-    """One run's recording in `directory`; `path` is its first part file."""
+    """One run's recording in `directory`; `path` is its first part file. Called from one thread."""
 
     def __init__(self, directory: str | Path, meta: RunMeta, *, max_bytes: int, keep: int,
-                 flush_s: float = FLUSH_S, queue_limit: int = QUEUE_LIMIT) -> None:
+                 flush_s: float = FLUSH_S, backlog_bytes: int = BACKLOG_BYTES) -> None:
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         if not meta.run:
             meta.run = uuid.uuid4().hex[:8]
         self.meta = meta
-        self.max_bytes = max_bytes
-        self.keep = keep
         self.flush_s = flush_s
-        self.queue_limit = queue_limit
+        self.backlog_bytes = backlog_bytes
         self.dropped = 0
-        self.thread_cpu_s = 0.0  # the writer thread's CPU time, once closed (what recording costs besides put)
+        self.process_cpu_s = 0.0  # the writer process's CPU time, once closed (what recording costs besides put)
+        self.process_start_cpu_s = 0.0  # ... of which starting Python and importing
         self.path = self.directory / run_file_name(meta)
-        self.current = self.path
-        self._queue: deque[tuple[Any, ...]] = deque()
-        self._wake = threading.Event()
-        self._closing = False
-        self._encoder = msgspec.msgpack.Encoder()
-        self._connection = self._open(self.path)
-        self._prune()
-        self._thread = threading.Thread(target=self._drain_forever, name="recording", daemon=True)
-        self._thread.start()
+        open_file(self.path, meta).close()  # here, not in the process: a directory that cannot be written raises
+        prune(self.directory, keep, self.path)
+        settings = msgspec.json.encode(Settings(str(self.path), meta, max_bytes, keep)).decode()
+        try:
+            self._process = subprocess.Popen([sys.executable, "-c", _BOOT, json.dumps(sys.path), settings],
+                                             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        except OSError:
+            self.path.unlink(missing_ok=True)
+            raise
+        assert self._process.stdin is not None
+        self._pipe = self._process.stdin.fileno()
+        os.set_blocking(self._pipe, False)
+        with contextlib.suppress(OSError, AttributeError):  # a bigger pipe: fewer partial writes
+            fcntl.fcntl(self._pipe, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        self._records = RecordBuffer()
+        self._backlog: deque[list[Any]] = deque()  # [what is still to be written of a message, its records]
+        self._waiting = 0  # bytes in the backlog
+        self._due = time.monotonic() + flush_s
+        self._gone = False  # the writer process ended: every record is dropped
+        self._closed = False
 
     # --- the caller's side: never blocks --------------------------------------------------
-    def put(self, t: float, kind: RecordKind, key: str, data: msgspec.Struct | bytes) -> None:
-        """Queue one record (`data`: the kind's struct, or it already encoded)."""
-        if len(self._queue) >= self.queue_limit:
+    def put(self, t: float, kind: RecordKind | str, key: str, data: Any) -> None:
+        """Append one record (`data`: the kind's struct)."""
+        if self._waiting > self.backlog_bytes or self._gone:
+            self._drop(1)
+            return
+        try:
+            self._records.append((t, kind, key, data))
+        except (TypeError, ValueError, OverflowError):  # a bug of ours must not stop the controller
+            log.exception("recording %s: a %s record of %r cannot be encoded; dropped", self.path, kind, key)
             self.dropped += 1
             return
-        self._queue.append((t, kind, key, data))
+        if len(self._records) >= CHUNK_BYTES or time.monotonic() >= self._due:
+            self.flush()
+
+    def ingested(self, t: float, changed: dict[str, Value], hub_states: Sequence[HubState]) -> None:
+        """An ingested batch as the controller took it: its changed values and every sample's hub state
+        (schema.HubState); the writer process keeps what a `states` row holds."""
+        self.put(t, INGESTED, "", (changed, hub_states))
 
     def update_meta(self, **fields: Any) -> None:
-        """Set RunMeta fields, written with the next batch."""
-        self._queue.append((_META, fields))
+        """Set RunMeta fields, written after the records put before."""
+        for name, value in fields.items():
+            setattr(self.meta, name, value)
+        self.flush()
+        self._send(message(META, fields), 0)
+
+    def flush(self) -> None:
+        """Hand what is buffered to the writer process now (`put` does it every `flush_s`)."""
+        self._due = time.monotonic() + self.flush_s
+        records = self._records.count
+        if records:
+            self._send(self._records.take(), records)
+        elif self._backlog:
+            self._pump()
 
     def close(self, timeout: float = 10.0) -> None:
-        """Write what is queued and the final meta, then close the file."""
-        if self._closing:
+        """Hand over what is buffered and the run's end, and wait for the writer process to write them."""
+        if self._closed:
             return
-        self._closing = True
-        self._wake.set()
-        self._thread.join(timeout)
-        if self._thread.is_alive():
-            log.warning("recording %s: the writer did not finish within %.0f s; %d records not written",
-                        self.current, timeout, len(self._queue))
-
-    # --- the writer thread ----------------------------------------------------------------
-    def _drain_forever(self) -> None:
+        self._closed = True
+        deadline = time.monotonic() + timeout
+        self.flush()
+        self._send(message(CLOSE, {"dropped": self.dropped} if self.dropped else {}), 0)
+        self._pump(deadline)
+        unsent = sum(records for _, records in self._backlog)
+        process = self._process
+        assert process.stdin is not None and process.stdout is not None
+        with contextlib.suppress(OSError):
+            process.stdin.close()  # the end of its input: it stops reading
         try:
-            while True:
-                self._wake.wait(self.flush_s)
-                closing = self._closing
-                self._write_batch(self._take())
-                if closing and not self._queue:
-                    break
-            if self.dropped:
-                self.meta.dropped = self.dropped
-            with self._connection:
-                self.write_meta(self._connection, self.meta)
-            self._complete(self._connection)  # one self-contained file once it ends
-        except (sqlite3.Error, OSError) as exc:  # a full disk must not take the controller down
-            log.error("recording %s stopped: %s", self.current, exc)
-        finally:
-            self._connection.close()
-            self.thread_cpu_s = time.thread_time()
-
-    def _take(self) -> list[tuple[Any, ...]]:
-        queue = self._queue
-        return [queue.popleft() for _ in range(len(queue))]
-
-    def _write_batch(self, batch: list[tuple[Any, ...]]) -> None:
-        if not batch:
+            process.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            log.warning("recording %s: the writer process did not finish within %.0f s; %d records not handed "
+                        "to it", self.path, timeout, unsent)
             return
-        encode = self._encoder.encode
-        rows = []
-        meta_changed = False
-        for item in batch:
-            if item[0] is _META:
-                for name, value in item[1].items():
-                    setattr(self.meta, name, value)
-                meta_changed = True
+        report = process.stdout.read()
+        process.stdout.close()
+        with contextlib.suppress(ValueError):
+            spent = json.loads(report or b"{}")
+            self.process_cpu_s, self.process_start_cpu_s = spent.get("cpu_s", 0.0), spent.get("started_cpu_s", 0.0)
+        if process.returncode != 0:
+            log.error("recording %s: the writer process failed (exit status %s)", self.path, process.returncode)
+
+    # --- handing over -----------------------------------------------------------------------
+    def _send(self, data: bytes | bytearray, records: int) -> None:
+        if self._gone:
+            self._drop(records)
+            return
+        self._backlog.append([memoryview(data), records])
+        self._waiting += len(data)
+        self._pump()
+
+    def _pump(self, deadline: float | None = None) -> None:
+        """Write the backlog into the pipe, as much as it takes now (until `deadline`, if given)."""
+        backlog = self._backlog
+        while backlog:
+            entry = backlog[0]
+            view: memoryview = entry[0]
+            try:
+                written = os.write(self._pipe, view)
+            except BlockingIOError:
+                written = 0
+            except OSError as exc:  # the process ended (BrokenPipeError)
+                self._lost(exc)
+                return
+            self._waiting -= written
+            if written == len(view):
+                backlog.popleft()
                 continue
-            t, kind, key, data = item
-            rows.append((t, kind.value, key, data if isinstance(data, bytes) else encode(data)))
-        connection = self._connection
-        with connection:
-            connection.executemany("INSERT INTO events (t, kind, key, data) VALUES (?, ?, ?, ?)", rows)
-            if meta_changed:
-                self.write_meta(connection, self.meta)
-        if self._size() > self.max_bytes:
-            self._rotate()
+            entry[0] = view[written:]
+            remaining = 0.0 if deadline is None else deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            select.select([], [self._pipe], [], remaining)
 
-    def _size(self) -> int:
-        pages = self._connection.execute("PRAGMA page_count").fetchone()[0]
-        return int(pages) * int(self._connection.execute("PRAGMA page_size").fetchone()[0])
+    def _lost(self, error: OSError) -> None:
+        self._gone = True
+        lost = sum(records for _, records in self._backlog) + self._records.count
+        self._records.take()
+        self._backlog.clear()
+        self._waiting = 0
+        log.error("recording %s: its writer process ended (%s): every record from now on is dropped", self.path,
+                  error)
+        self._drop(lost)
 
-    @staticmethod
-    def _complete(connection: sqlite3.Connection) -> None:
-        connection.execute(KIND_KEY_INDEX)
-        connection.execute("PRAGMA journal_mode=DELETE")  # one self-contained file once it ends
-
-    def _rotate(self) -> None:
-        self._complete(self._connection)
-        self._connection.close()
-        self.meta.part += 1
-        self.current = self.directory / run_file_name(self.meta, self.meta.part)
-        self._connection = self._open(self.current)
-        self._prune()
-
-    def _open(self, path: Path) -> sqlite3.Connection:
-        connection = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
-        connection.execute("PRAGMA journal_mode=WAL")  # readers (timeline, runs) see committed batches
-        connection.execute("PRAGMA synchronous=NORMAL")
-        connection.executescript(DDL)
-        connection.isolation_level = ""  # `with connection` opens and commits a transaction
-        with connection:
-            self.write_meta(connection, self.meta)
-        return connection
-
-    @staticmethod
-    def write_meta(connection: sqlite3.Connection, meta: RunMeta) -> None:
-        connection.executemany("INSERT OR REPLACE INTO run_meta (key, value) VALUES (?, ?)",
-                               [(k, json.dumps(v)) for k, v in msgspec.to_builtins(meta).items()])
-
-    def _prune(self) -> None:
-        """Delete the oldest recordings beyond `keep` (never the file being written)."""
-        files = sorted(self.directory.glob(f"*{SUFFIX}"), key=lambda p: (p.stat().st_mtime, p.name))
-        excess = len(files) - self.keep
-        for old in files:
-            if excess <= 0:
-                break
-            if old == self.current:
-                continue
-            for suffix in ("", "-wal", "-shm"):
-                with contextlib.suppress(FileNotFoundError):
-                    os.unlink(f"{old}{suffix}")
-            log.info("recording: deleted %s (keep %d files)", old, self.keep)
-            excess -= 1
+    def _drop(self, records: int) -> None:
+        if not self.dropped and records and not self._gone:
+            log.warning("recording %s: the disk does not keep up; records are dropped (counted in the recording)",
+                        self.path)
+        self.dropped += records

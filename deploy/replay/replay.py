@@ -95,6 +95,9 @@ class ListSink:
         if kind in DECISIONS:
             self.records.append(Record(t, kind, key, data))
 
+    def ingested(self, t: float, changed: dict[str, Any], hub_states: Any) -> None:
+        pass  # an input, not a decision
+
     def update_meta(self, **fields: Any) -> None:
         pass
 

@@ -15,7 +15,7 @@ import msgspec
 
 from common.recording.reader import Run
 from common.recording.schema import DDL, SUFFIX, RecordKind, StateRecord
-from common.recording.writer import RecordingWriter
+from common.recording.store import write_meta
 
 from .replay import CORE_EVENTS
 
@@ -45,7 +45,7 @@ def save_test(run: Run, target: str | Path) -> Path:
     try:
         connection.executescript(DDL)
         connection.execute("BEGIN")
-        RecordingWriter.write_meta(connection, meta)
+        write_meta(connection, meta)
         connection.executemany("INSERT INTO events (t, kind, key, data) VALUES (?, ?, ?, ?)", rows)
         connection.execute("COMMIT")
         # A replay reads it once, in order: the indexes would double its size for nothing.

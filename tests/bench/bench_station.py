@@ -20,8 +20,9 @@
     (tests/bench/bench_bus.py).
 (e) what recording the run costs (common/recording): (b) at 500 resources with the controller
     recording and with `--no-record`, alternately; its tick median and its ingest capacity, i.e. the
-    states it ingests per second of its CPU (one core's worth is what it could ingest at most).
-    Then the same in one process without Zenoh (bench_recording.py), steadier on a busy machine,
+    states it ingests per second of its CPU (one core's worth is what it could ingest at most); the
+    recording's writer is a process of its own, whose CPU is printed apart. Then the same in one
+    process without Zenoh (bench_recording.py), steadier on a busy machine,
     with values that never change and with values that change in every state (the worst case).
     Target: recording costs < 5 % of the ingest capacity. `--recording-only` runs just this.
 
@@ -98,6 +99,7 @@ class Step:
     age_max_ms: float = 0.0
     unhealthy: int = 0
     controller_cpu: float = 0.0  # share of one core
+    writer_cpu: float = 0.0  # of its recording's writer process (common/recording/writer.py), apart
     problem: str = ""
     notes: list[str] = field(default_factory=list)
 
@@ -118,6 +120,18 @@ class Step:
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def recording_writer(controller: int) -> int | None:
+    """The pid of the controller's recording writer process (its child running writer_process), if any."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == controller and \
+                    b"writer_process" in stat.with_name("cmdline").read_bytes():
+                return int(stat.parent.name)
+        except (OSError, ValueError, IndexError):
+            continue
+    return None
 
 
 def rss_mb(pid: int) -> float:
@@ -185,6 +199,8 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
                 return step
             await asyncio.sleep(warmup)
             statuses.take_all()
+            writer = recording_writer(controller.pid)
+            writer0 = cpu_seconds(writer) if writer is not None else 0.0
             cpu0, t0 = cpu_seconds(controller.pid), time.monotonic()
             windows = []
             last = None
@@ -197,6 +213,8 @@ async def capacity_step(directory: Path, resources: int, warmup: float, window: 
                 if status.loop is not None and status.loop.window_s > 0:
                     windows.append(status.loop)
             step.controller_cpu = (cpu_seconds(controller.pid) - cpu0) / (time.monotonic() - t0)
+            if writer is not None:
+                step.writer_cpu = (cpu_seconds(writer) - writer0) / (time.monotonic() - t0)
             if not windows or last is None:
                 step.problem = "no loop statistics in the controller's status (StatusMessage.loop)"
                 return step
@@ -332,6 +350,7 @@ def recording_cost(directory: Path, rounds: int, warmup: float, window: float) -
             steps[record].append(step)
             print(f"    recording {'on ' if record else 'off'}: tick median {step.tick_median_ms:.2f} ms, ingested "
                   f"{step.ingested:,.0f}/s, controller cpu {100 * step.controller_cpu:.0f} %"
+                  + (f", its recording's writer process {100 * step.writer_cpu:.1f} %" if record else "")
                   + (f" {step.problem}" if step.problem else ""), flush=True)
 
     def capacity(step: Step) -> float:  # states ingested per CPU second of the controller
