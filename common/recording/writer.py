@@ -52,6 +52,7 @@ RECORDING_DIR_ENV = "STATEHUB_RECORDING_DIR"  # overrides [controller.recording]
 FLUSH_S = 0.25  # the buffer goes to the writer process at least this often
 CHUNK_BYTES = 256 * 1024  # ... or once it holds this much
 BACKLOG_BYTES = 64 * 1024 * 1024  # waiting for the writer process before new records are dropped
+CLOSE_WAIT_S = 3.0  # at a stop, for the writer process: within the controller's exit bound (common/process.py)
 PIPE_BYTES = 1024 * 1024  # asked of the kernel for the pipe (Linux's default limit for a user)
 # The writer process gets this process's sys.path, as multiprocessing's spawn does, without re-importing
 # our __main__ (the controller's or hubctl's) as spawn would.
@@ -137,8 +138,10 @@ class RecordingWriter:
         elif self._backlog:
             self._pump()
 
-    def close(self, timeout: float = 10.0) -> None:
-        """Hand over what is buffered and the run's end, and wait for the writer process to write them."""
+    def close(self, timeout: float = CLOSE_WAIT_S) -> None:
+        """Hand over what is buffered and the run's end, and wait for the writer process to write them. A
+        writer process still busy after `timeout` goes on by itself (it ignores SIGTERM; the end of its
+        input tells it the run is over): the controller's exit is not held up beyond its own bound."""
         if self._closed:
             return
         self._closed = True
@@ -154,8 +157,8 @@ class RecordingWriter:
         try:
             process.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            log.warning("recording %s: the writer process did not finish within %.0f s; %d records not handed "
-                        "to it", self.path, timeout, unsent)
+            log.warning("recording %s: the writer process did not finish within %.0f s (it goes on by itself); "
+                        "%d records not handed to it", self.path, timeout, unsent)
             return
         report = process.stdout.read()
         process.stdout.close()
