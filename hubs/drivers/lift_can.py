@@ -15,7 +15,8 @@ controller sees the resource unhealthy).
 Device lost: no heartbeat for ``heartbeat_timeout`` (0.35 s), no status frame for
 ``status_timeout`` (0.1 s), a heartbeat other than operational, or a bus error: the
 next ``read`` raises ``DeviceUnavailable`` and the shared ReconnectLogic reopens the
-bus and waits for the heartbeat again.
+bus and waits for the heartbeat again.  A silence is judged after one wait of half the
+status timeout, so that frames that came while the hub's loop was busy count.
 
 Safe state: ``enter_safe_state()`` sends *stop* at once and keeps sending it instead of
 the target (also after a reconnect); ``ref_c`` keeps its value (it returns ``{}``).  The
@@ -140,6 +141,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         self._desired: str | None = None  # last commanded ref_c
         self._held = False  # safe state entered: send stop until the next write
         self._seq = 0
+        self._sent: dict[int, int] = {}  # seq -> command, the last 256 sent
         self._link = ReconnectLogic(
             f"{resource}@{where}:node 0x{node_id:02x}",
             self._open,
@@ -151,7 +153,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
     # -- Driver API -------------------------------------------------------------------
 
     async def read(self) -> Mapping[str, Value]:
-        status = self._fresh_status()
+        status = await self._current_status()
         if status.fault:
             raise DeviceUnavailable(f"{self.resource}: lift reports fault code {status.fault_code}")
         if status.upper and status.lower:
@@ -191,7 +193,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         report.add("device answers", True, f"node 0x{self.node_id:02x} on {self.where} operational")
         try:
             values = await self.read()
-            status = self._fresh_status()
+            status = await self._current_status()
             report.add("inputs read", True, f"pos_m={values['pos_m']}, position {status.position_mm} mm")
         except DeviceUnavailable as exc:
             report.add("inputs read", False, str(exc))
@@ -202,8 +204,9 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
             deadline = time.monotonic() + max(0.5, 10 * self.status_timeout)
             while time.monotonic() < deadline:
                 status = self._status
-                if status is not None and status.echo_seq == seq and status.echo_command == command:
-                    report.add("outputs read back", True, f"command {command} (seq {seq}) echoed")
+                if status is not None and self._echoes_since(status, seq):
+                    report.add("outputs read back", True,
+                               f"command {status.echo_command} (seq {status.echo_seq}) echoed")
                     break
                 await asyncio.sleep(0.01)
             else:
@@ -226,6 +229,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
         if bus is None:
             raise DeviceUnavailable(f"{self.resource}: bus not open")
         self._seq = (self._seq + 1) & 0xFF
+        self._sent[self._seq] = command
         msg = can.Message(arbitration_id=COB_COMMAND + self.node_id, data=[command, self._seq], is_extended_id=False)
         try:
             bus.send(msg, timeout=0.05)
@@ -234,22 +238,40 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
             raise DeviceUnavailable(f"{self.resource}: {describe(exc)}") from exc
         return self._seq
 
-    def _fresh_status(self) -> LiftStatus:
+    def _echoes_since(self, status: LiftStatus, seq: int) -> bool:
+        """The status echoes the command sent as ``seq`` or one sent after it (a command written
+        meanwhile, or the keepalive's), as it was sent."""
+        if (status.echo_seq - seq) & 0xFF > (self._seq - seq) & 0xFF:
+            return False
+        return self._sent.get(status.echo_seq) == status.echo_command
+
+    async def _current_status(self) -> LiftStatus:
+        """The latest status, if the lift is alive.
+
+        Frames are stamped when the event loop takes them: after the loop was busy (a long GC, a
+        starved process) the frames that came meanwhile are still waiting to be handed over, so a
+        status that looks old gets one short wait for them before the lift is declared lost."""
         if not self.connected:
             raise DeviceUnavailable(f"{self.resource}: lift not connected ({self._link.last_error})")
-        now = time.monotonic()
-        reason = None
-        if self._heartbeat is None or now - self._heartbeat[1] > self.heartbeat_timeout:
-            reason = f"no heartbeat for {self.heartbeat_timeout} s"
-        elif self._heartbeat[0] != NMT_OPERATIONAL:
-            reason = f"node not operational (NMT state {self._heartbeat[0]:#04x})"
-        elif self._status is None or now - self._status.received > self.status_timeout:
-            reason = f"no status frame for {self.status_timeout} s"
+        if self._silence() is not None:
+            await asyncio.sleep(self.status_timeout / 2)
+        reason = self._silence()
         if reason is not None:
             self._link.connection_lost(reason)
             raise DeviceUnavailable(f"{self.resource}: {reason}")
         assert self._status is not None
         return self._status
+
+    def _silence(self) -> str | None:
+        """Why the lift looks lost now, or None."""
+        now = time.monotonic()
+        if self._heartbeat is None or now - self._heartbeat[1] > self.heartbeat_timeout:
+            return f"no heartbeat for {self.heartbeat_timeout} s"
+        if self._heartbeat[0] != NMT_OPERATIONAL:
+            return f"node not operational (NMT state {self._heartbeat[0]:#04x})"
+        if self._status is None or now - self._status.received > self.status_timeout:
+            return f"no status frame for {self.status_timeout} s"
+        return None
 
     def _on_message(self, msg: can.Message) -> None:
         """Runs on the event loop (the Notifier hands messages over with ``loop=``)."""
@@ -273,7 +295,7 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
                 with contextlib.suppress(DeviceUnavailable):
                     self._send_command(self._command_in_force())
             with contextlib.suppress(DeviceUnavailable):
-                self._fresh_status()  # notices a silent lift even when nobody reads
+                await self._current_status()  # notices a silent lift even when nobody reads
 
     # -- connection -------------------------------------------------------------------
 

@@ -132,6 +132,9 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
         self._executor: concurrent.futures.ThreadPoolExecutor | None = None
         self._executor_stuck = False
         self._desired_run: bool | None = None  # last commanded run_c, applied again after a reconnect
+        # Writes and the self-test's latch write-back take turns: interleaved, the self-test wrote the
+        # latch it had read over a stop commanded meanwhile (seen: the tool started again).
+        self._command_lock = asyncio.Lock()
         self._iodir = self.pins.iodir()
         self._link = ReconnectLogic(
             f"{resource}@i2c-{bus_number}:0x{address:02x}",
@@ -157,10 +160,11 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
         if "run_c" not in commands:
             return
         run = bool(commands["run_c"])
-        self._desired_run = run
-        if not self.connected:
-            raise DeviceUnavailable(f"{self.resource}: expander not connected ({self._link.last_error})")
-        await self._set_run(run)
+        async with self._command_lock:
+            self._desired_run = run
+            if not self.connected:
+                raise DeviceUnavailable(f"{self.resource}: expander not connected ({self._link.last_error})")
+            await self._set_run(run)
 
     async def enter_safe_state(self) -> Mapping[str, Value]:
         safe: dict[str, Value] = {"run_c": False}
@@ -185,10 +189,11 @@ class NutrunnerMcp23017(LinkedDriver[ReconnectLogic]):
             return report
         try:
             # Non-intrusive: write the run latch with its present value and check latch and pin level.
-            regs = await self._registers()
-            port, bit = self.pins.run
-            current = bool(regs[OLATA + port] >> bit & 1)
-            await self._set_run(current)
+            async with self._command_lock:
+                regs = await self._registers()
+                port, bit = self.pins.run
+                current = bool(regs[OLATA + port] >> bit & 1)
+                await self._set_run(current)
             report.add("outputs read back", True, f"run pin {'AB'[port]}{bit} latch and level = {int(current)}")
         except DeviceUnavailable as exc:
             report.add("outputs read back", False, str(exc))

@@ -28,6 +28,7 @@ nothing else moves, and a hub (re)start never unlocks a held tool.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import Mapping
 
@@ -68,6 +69,9 @@ class RspModbus(LinkedDriver[ModbusLink]):
         self.coil_base = coil_base
         self.di_base = di_base
         self._desired_lock: bool | None = None
+        # Writes and the self-test's read-back take turns: interleaved, the self-test reads a
+        # command's coils as its own failure, or writes its own over them.
+        self._command_lock = asyncio.Lock()
         self._link = ModbusLink(
             resource, host, port, device_id=device_id, timeout=timeout, backoff=backoff, probe=self._on_connect
         )
@@ -82,8 +86,9 @@ class RspModbus(LinkedDriver[ModbusLink]):
         if "lock_c" not in commands:
             return
         lock = bool(commands["lock_c"])
-        self._desired_lock = lock
-        await self._drive(lock)
+        async with self._command_lock:
+            self._desired_lock = lock
+            await self._drive(lock)
 
     async def enter_safe_state(self) -> Mapping[str, Value]:
         return {}  # the valves hold: a tool changer never drops its tool
@@ -102,27 +107,24 @@ class RspModbus(LinkedDriver[ModbusLink]):
         except DeviceUnavailable as exc:
             report.add("inputs read", False, str(exc))
         try:
-            coils = await self.link.read_coils(self.coil_base, 2)
-            if coils[0] and coils[1]:
-                report.add("outputs read back", False, "lock and unlock solenoids both on")
-                return report
-            # Write what is commanded (or what is there) and read it back: never a change of lock state.
-            lock = (
-                self._desired_lock
-                if self._desired_lock is not None
-                else (coils[0] if coils != [False, False] else None)
-            )
-            if lock is None:
-                await self.link.write_coils(self.coil_base, coils)
-                back = await self.link.read_coils(self.coil_base, 2)
-                ok = back == coils
-                report.add("outputs read back", ok, f"solenoids lock={int(back[0])} unlock={int(back[1])}")
-            else:
-                await self._drive(lock)
-                report.add("outputs read back", True, f"{'lock' if lock else 'unlock'} solenoid on, read back")
+            async with self._command_lock:
+                report.add("outputs read back", *await self._outputs_read_back())
         except DeviceUnavailable as exc:
             report.add("outputs read back", False, str(exc))
         return report
+
+    async def _outputs_read_back(self) -> tuple[bool, str]:
+        """Write what is commanded (or what is there) and read it back: never a change of lock state."""
+        coils = await self.link.read_coils(self.coil_base, 2)
+        if coils[0] and coils[1]:
+            return False, "lock and unlock solenoids both on"
+        lock = self._desired_lock if self._desired_lock is not None else (coils[0] if any(coils) else None)
+        if lock is None:
+            await self.link.write_coils(self.coil_base, coils)
+            back = await self.link.read_coils(self.coil_base, 2)
+            return back == coils, f"solenoids lock={int(back[0])} unlock={int(back[1])}"
+        await self._drive(lock)
+        return True, f"{'lock' if lock else 'unlock'} solenoid on, read back"
 
     # -- protocol ---------------------------------------------------------------------
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import time
 from collections.abc import Iterator
 
 import can
@@ -119,6 +120,39 @@ async def test_selftest_passes(driver: LiftCan) -> None:
     report = await driver.selftest()
     assert report.ok, report
     assert [c.name for c in report.checks] == ["device answers", "inputs read", "outputs read back"]
+
+
+async def test_the_selftest_read_back_holds_while_commands_are_sent_meanwhile(channel: str, lift: LiftSim,
+                                                                              connect: Connect) -> None:
+    """The hub runs its self-test while commands arrive, and the keepalive resends the command in force:
+    the echo of a later command also shows the outputs read back, not a failure."""
+    driver = await connect(make(channel, command_period=0.002))
+    for step in range(6):
+
+        async def command_later(ref: str = ("up", "down")[step % 2], delay: float = 0.002 * step) -> None:
+            await asyncio.sleep(delay)
+            await driver.write({"ref_c": ref})
+
+        report, _ = await asyncio.gather(driver.selftest(), command_later())
+        assert report.ok, (step, report)
+
+
+async def test_a_stalled_event_loop_is_not_taken_for_a_silent_lift(driver: LiftCan, lift: LiftSim) -> None:
+    """Status frames that arrived while the hub's loop was busy (a long GC, a starved process) are
+    waiting to be handed over: the lift is not declared lost for them."""
+    await driver.read()
+    for _ in range(3):
+        time.sleep(3 * driver.status_timeout)  # the loop stalls; the lift keeps sending
+        assert dict(await driver.read()) == {"pos_m": "down"}
+    assert driver.link.connects == 1
+
+
+async def test_a_silent_lift_is_still_declared_lost(driver: LiftCan, lift: LiftSim) -> None:
+    await driver.read()
+    lift.stop()
+    await asyncio.sleep(3 * driver.status_timeout)
+    with pytest.raises(DeviceUnavailable, match=r"no status frame|no heartbeat"):
+        await driver.read()
 
 
 async def test_selftest_fails_without_device(channel: str) -> None:

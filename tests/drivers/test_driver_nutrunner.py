@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+
 import pytest
 from drvtest import Connect, eventually, read_until
 
@@ -136,6 +138,24 @@ async def test_selftest_passes(driver: NutrunnerMcp23017) -> None:
     report = await driver.selftest()
     assert report.ok, report
     assert [c.name for c in report.checks] == ["device answers", "inputs read", "outputs read back"]
+
+
+async def test_the_selftest_never_undoes_a_command_written_meanwhile(
+        driver: NutrunnerMcp23017, station: NutrunnerStation) -> None:
+    """The hub runs its self-test while commands arrive: a stop (or start) written meanwhile must not be
+    overwritten by the self-test's latch write-back. The command comes at points over one self-test."""
+    for step in range(40):
+        run = step % 2 == 1
+        await driver.write({"run_c": not run})
+
+        async def command_later(run: bool = run, yields: int = step // 2) -> None:
+            for _ in range(yields):
+                await asyncio.sleep(0)
+            await driver.write({"run_c": run})
+
+        report, _ = await asyncio.gather(driver.selftest(), command_later())
+        assert report.ok, (step, report)
+        assert bool(station.chip.regs[sim.OLATA] & 1) == run, step  # the command's latch, not the self-test's
 
 
 async def test_selftest_fails_when_device_absent(bus: SimI2CBus) -> None:

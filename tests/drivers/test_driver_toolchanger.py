@@ -114,6 +114,29 @@ async def test_selftests_pass(rsp: RspModbus, dock: DockModbus) -> None:
         assert report.ok, report
         assert {c.name for c in report.checks} == {"device answers", "inputs read", "outputs read back"}
 
+async def test_the_selftest_never_undoes_or_fails_on_a_command_written_meanwhile(
+        coupler: ToolChangerServer, rsp: RspModbus) -> None:
+    """The hub runs its self-test while commands arrive. Its output read-back must not interleave
+    with a command: it would report the command's coils as not read back, or write its own over them.
+    The command comes at points spread over one self-test's duration."""
+    coupler.physics.move_flange(1)
+    started = asyncio.get_running_loop().time()
+    assert (await rsp.selftest()).ok
+    duration = asyncio.get_running_loop().time() - started
+    for step in range(16):
+        lock = step % 2 == 0
+        await rsp.write({"lock_c": not lock})
+        await read_until(rsp, locked_m=not lock)
+
+        async def command_later(lock: bool = lock, delay: float = duration * step / 16) -> None:
+            await asyncio.sleep(delay)
+            await rsp.write({"lock_c": lock})
+
+        report, _ = await asyncio.gather(rsp.selftest(), command_later())
+        assert report.ok, (step, report)
+        assert await rsp.link.read_coils(0, 2) == [lock, not lock], step  # the command's coils, not the self-test's
+        await read_until(rsp, locked_m=lock)
+
 
 async def test_selftest_fails_when_coupler_absent(coupler: ToolChangerServer) -> None:
     port = coupler.port
