@@ -20,8 +20,9 @@ Zones are axis-aligned rectangles ``[x_min, y_min, x_max, y_max]`` in hubs.toml
 ``outside`` (nobody in a zone, or nobody in view).
 
 Device lost: the connection drops, or no valid frame for ``stale_after`` s (default
-0.5): ``read`` raises ``DeviceUnavailable`` (never the last zone); the shared
-ReconnectLogic reconnects with backoff.  Safe state: none (no outputs).
+0.5; a silence gets one more wait of half that, so that frames that came while the hub's
+loop was busy count): ``read`` raises ``DeviceUnavailable`` (never the last zone); the
+shared ReconnectLogic reconnects with backoff.  Safe state: none (no outputs).
 """
 
 from __future__ import annotations
@@ -117,7 +118,7 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
         )
 
     async def read(self) -> Mapping[str, Value]:
-        people = self._fresh_people()
+        people = await self._fresh_people()
         zones = {zone_of(x, y, self.zones) for x, y in people}
         zone = next((z for z in ZONE_ORDER if z in zones), "outside")
         return {"zone_m": zone}
@@ -137,9 +138,16 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
         report.add("outputs read back", True, "not applicable: the camera has no outputs")
         return report
 
-    def _fresh_people(self) -> list[tuple[float, float]]:
+    async def _fresh_people(self) -> list[tuple[float, float]]:
+        """The people of the latest frame, if the tracker is alive.
+
+        Frames are stamped when the event loop takes them: after the loop was busy (a long GC, a
+        starved process) the frames that came meanwhile still wait in the socket, so a frame that
+        looks old gets one short wait for them before the tracker is declared lost."""
         if not self.connected:
             raise DeviceUnavailable(f"{self.resource}: tracker not connected ({self._link.last_error})")
+        if time.monotonic() - self._frame_time > self.stale_after:
+            await asyncio.sleep(self.stale_after / 2)
         age = time.monotonic() - self._frame_time
         if age > self.stale_after:
             reason = f"no tracker frame for {age:.2f} s"
@@ -150,10 +158,8 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
     async def _receive(self, reader: asyncio.StreamReader) -> None:
         try:
             while True:
-                try:
-                    async with asyncio.timeout(self.stale_after):
-                        line = await reader.readline()
-                except TimeoutError:
+                line = await self._next_line(reader)
+                if line is None:
                     self._link.connection_lost(f"no tracker frame for {self.stale_after} s")
                     return
                 if not line:
@@ -170,6 +176,17 @@ class CameraTracker(NoOutputs, LinkedDriver[ReconnectLogic]):
                 self._first_frame.set()
         except (ConnectionError, OSError, asyncio.LimitOverrunError, ValueError) as exc:
             self._link.connection_lost(f"feed read failed: {describe(exc)}")
+
+    async def _next_line(self, reader: asyncio.StreamReader) -> bytes | None:
+        """The next line, or None when the tracker is silent.  A timeout that fires as the loop comes
+        back from being busy may beat the lines that wait in the socket: they get one short wait."""
+        for wait in (self.stale_after, self.stale_after / 2):
+            try:
+                async with asyncio.timeout(wait):
+                    return await reader.readline()
+            except TimeoutError:
+                continue
+        return None
 
     async def _open(self) -> None:
         self._first_frame.clear()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -125,5 +126,21 @@ async def test_simulator_as_a_process() -> None:
             proc.kill()
             proc.wait()
             await eventually(lambda: not drv.connected)
+        finally:
+            await drv.close()
+
+
+async def test_a_stalled_event_loop_is_not_taken_for_a_silent_tracker() -> None:
+    """Frames that came while the hub's loop was busy (a long GC, a starved process) wait in the socket:
+    the tracker is not declared lost for them. The tracker runs in its own process, as on the cell."""
+    async with simulator_process("hubs.sim.camera_tracker", "--port", "0", "--rate", "50") as (_, line):
+        drv = make_driver("cam", "camera", "sim",
+                          {"port": int(line.rsplit(":", 1)[1]), "reconnect_min": 0.05, "stale_after": 0.3})
+        await drv.connect()
+        try:
+            await read_until(drv, zone_m="outside")
+            for _ in range(3):
+                time.sleep(0.45)  # the loop stalls; the tracker keeps sending
+                assert dict(await drv.read()) == {"zone_m": "outside"}
         finally:
             await drv.close()
