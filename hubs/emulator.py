@@ -9,7 +9,7 @@ the command values it is given and writes measured values only.
 from __future__ import annotations
 
 import random
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 
 from common.model import Model, Transition, TransitionKind, Value, apply_all
@@ -90,8 +90,9 @@ class EffectEmulator:
             return 0  # the first outcome is the nominal one (torque reached)
         return self.random.randrange(1, len(t.outcomes))
 
-    def step(self, state: Mapping[str, Value], now: float) -> dict[str, Value]:
-        """Schedule newly enabled effects, fire the due ones; returns the measured values that changed."""
+    def step(self, state: Mapping[str, Value], now: float, hold: Collection[str] = ()) -> dict[str, Value]:
+        """Schedule newly enabled effects, fire the due ones except those named in `hold` (they stay
+        scheduled); returns the measured values that changed."""
         changes: dict[str, Value] = {}
         current = dict(state)
         for t in self.effects:
@@ -102,7 +103,7 @@ class EffectEmulator:
                 continue
             if scheduled is None:
                 self.pending[t.name] = _Scheduled(now + self.delay_of(t), self._choose(t))
-            elif scheduled.due <= now:
+            elif scheduled.due <= now and t.name not in hold:
                 del self.pending[t.name]
                 after = apply_all(t.outcomes[scheduled.outcome], current)
                 for path in t.written():
@@ -111,5 +112,5 @@ class EffectEmulator:
                 current = after
         return changes
 
-    def next_due(self) -> float | None:
-        return min((s.due for s in self.pending.values()), default=None)
+    def next_due(self, hold: Collection[str] = ()) -> float | None:
+        return min((s.due for name, s in self.pending.items() if name not in hold), default=None)

@@ -232,7 +232,7 @@ class HubRuntime:
                 continue
             values = {p: v for p, v in snapshot.values.items() if p in paths}
             if values:
-                self._observed(values)
+                self._observed(values, snapshot.time)
 
     async def _follow(self, resource: str, codec: Codec, what: str) -> None:
         key = self.keys.state(resource) if what == "state" else self.keys.cmd(resource)
@@ -243,12 +243,13 @@ class HubRuntime:
             except MessageError as exc:
                 log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
                 continue
-            self._observed({p: v for p, v in codec.values(message, paths=True).items() if v is not None})
+            values = {p: v for p, v in codec.values(message, paths=True).items() if v is not None}
+            self._observed(values, message.time)
 
-    def _observed(self, values: Mapping[str, Value]) -> None:
+    def _observed(self, values: Mapping[str, Value], published_at: float) -> None:
         for slot in self.slots.values():
             if isinstance(slot.driver, Observes):
-                slot.driver.observe(values)
+                slot.driver.observe(values, published_at)
 
     # --- state out ------------------------------------------------------------------------
     async def _publish_loop(self) -> None:

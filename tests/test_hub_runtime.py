@@ -234,7 +234,7 @@ class Uninterested(RecordingDriver):
     def inputs(self) -> tuple[str, ...]:
         raise AssertionError("the runtime asked a driver without Inputs for its inputs")
 
-    def observe(self, values: Mapping[str, Value]) -> None:
+    def observe(self, values: Mapping[str, Value], published_at: float | None = None) -> None:
         raise AssertionError("the runtime handed values to a driver that does not observe")
 
 
@@ -244,13 +244,15 @@ class Follower(RecordingDriver, Inputs, Observes):
     def __init__(self, *args: Any) -> None:
         super().__init__(*args)
         self.observed: dict[str, Value] = {}
+        self.published_at: list[float | None] = []
 
     @property
     def inputs(self) -> tuple[str, ...]:
         return ("rsp.locked_m",)
 
-    def observe(self, values: Mapping[str, Value]) -> None:
+    def observe(self, values: Mapping[str, Value], published_at: float | None = None) -> None:
         self.observed.update(values)
+        self.published_at.append(published_at)
 
 
 async def test_a_driver_without_inputs_is_never_asked_for_them() -> None:
@@ -268,13 +270,13 @@ async def test_a_driver_that_declares_inputs_observes_them() -> None:
     follower = Follower("nr", "run_c", "run_m", {"run_c": False})
     async with Hub({"nr": follower}) as hub:
         assert hub.keys.state("rsp") in hub.bus.subscribed
-        state = hub.codecs["rsp"].state({"locked_m": True}, status=HubStatus.OK, seq=1, hub="other")
+        state = hub.codecs["rsp"].state({"locked_m": True}, status=HubStatus.OK, seq=1, hub="other", time=1234.5)
         hub.bus.publish(hub.keys.state("rsp"), hub.codecs["rsp"].encode_state(state))
         deadline = time.monotonic() + 5
         while not follower.observed and time.monotonic() < deadline:
             await asyncio.sleep(0.01)
     assert follower.observed == {"rsp.locked_m": True}
-
+    assert follower.published_at == [1234.5]  # when the other hub published it, for causal emulation
 
 
 class Sloppy(RecordingDriver):

@@ -111,5 +111,8 @@ class Observes(abc.ABC):
     """Declared capability: the driver takes values of other resources' variables."""
 
     @abc.abstractmethod
-    def observe(self, values: Mapping[str, Value]) -> None:
-        """New values, keyed by full variable path; may hold paths the driver did not ask for."""
+    def observe(self, values: Mapping[str, Value], published_at: float | None = None) -> None:
+        """New values, keyed by full variable path; may hold paths the driver did not ask for.
+
+        `published_at`: when their publisher sent them (its wall clock, s since the epoch), or
+        None when unknown."""

@@ -5,12 +5,21 @@ The emulator behind a `Driver` like any other: `write` sets the command variable
 task. Effects may depend on other resources (the tool changer sees where the robot is):
 it declares `Inputs` naming those variables, and `Observes` them: the hub feeds their
 values from the states the other hubs publish.
+
+Such an effect waits, after a command, for news of those resources published after the
+command came. The controller commanded on a state at least that new, but another hub's
+news can reach this hub after the command does (another path, a busy machine); fired on
+older news the effect takes a branch the controller never saw. Seen under load: the tool
+changer, told to unlock at the dock while it still had the robot on its way there, kept
+the tool on the plate, a dead end for the station. The other hubs publish at their rate
+(50 Hz by default), so the wait is short; a silent one holds it at most `input_wait`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 from collections.abc import Mapping
 
@@ -27,9 +36,14 @@ SAFE_STATES: dict[str, dict[str, Value]] = {
 }
 
 
+# The longest an effect that reads other resources waits for their news after a command.
+INPUT_WAIT_S = 1.0
+
+
 class EmulatedDriver(Driver, Inputs, Observes):
     def __init__(self, model: Model, resource: str, *, speed: float = 1.0, seed: int = 0,
-                 failure_probability: float = 0.0, delay: float | None = None) -> None:
+                 failure_probability: float = 0.0, delay: float | None = None,
+                 input_wait: float = INPUT_WAIT_S) -> None:
         self.resource = resource
         self.model = model
         spec = model.resource_by_name[resource]
@@ -44,6 +58,11 @@ class EmulatedDriver(Driver, Inputs, Observes):
         self._inputs = frozenset(p for p in self.emulator.paths if p not in own)
         for path in self._inputs:
             self.values[path] = model.var(path).initial  # type: ignore[assignment]
+        self._reads_inputs = {t.name: t.guard.paths() & self._inputs for t in self.emulator.effects
+                              if t.guard.paths() & self._inputs}
+        self._published: dict[str, float] = {}  # input path -> when its latest value was published
+        self._commanded_at: float | None = None  # when a command value last changed here
+        self._input_wait = input_wait
         self._task: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
         self._prefix = f"{resource}."
@@ -69,15 +88,17 @@ class EmulatedDriver(Driver, Inputs, Observes):
         loop = asyncio.get_running_loop()
         while True:
             self._wake.clear()
-            changes = self.emulator.step(self.values, time.monotonic())
+            hold, release_in = self._held()
+            changes = self.emulator.step(self.values, time.monotonic(), hold)
             if changes:
                 # What just fired may enable another effect: step again to schedule it, after
                 # letting the rest of the hub run.
                 self.values.update(changes)
                 await asyncio.sleep(0)
                 continue
-            due = self.emulator.next_due()
-            timer = None if due is None else loop.call_later(max(0.0, due - time.monotonic()), self._wake.set)
+            due = self.emulator.next_due(hold)
+            wait = min(max(0.0, due - time.monotonic()) if due is not None else math.inf, release_in)
+            timer = None if wait == math.inf else loop.call_later(wait, self._wake.set)
             try:
                 await self._wake.wait()
             finally:
@@ -88,14 +109,35 @@ class EmulatedDriver(Driver, Inputs, Observes):
     def inputs(self) -> tuple[str, ...]:
         return tuple(sorted(self._inputs))
 
-    def observe(self, values: Mapping[str, Value]) -> None:
+    def _held(self) -> tuple[frozenset[str], float]:
+        """The effects that wait for news of their inputs, and in how many seconds they stop waiting
+        (inf: none waits)."""
+        since = self._commanded_at
+        if since is None or not self._reads_inputs:
+            return frozenset(), math.inf
+        left = since + self._input_wait - time.time()
+        if left <= 0:
+            return frozenset(), math.inf
+        held = frozenset(name for name, paths in self._reads_inputs.items()
+                         if any(self._published.get(p, -math.inf) < since for p in paths))
+        return held, (left if held else math.inf)
+
+    def observe(self, values: Mapping[str, Value], published_at: float | None = None) -> None:
         """Values of other resources' variables that this device's effects depend on."""
-        changed = False
+        at = time.time() if published_at is None else published_at
+        wake = False
         for path, value in values.items():
-            if path in self._inputs and self.values.get(path) != value:
+            if path not in self._inputs:
+                continue
+            before = self._published.get(path, -math.inf)
+            if at < before:
+                continue  # older than what is known: overtaken on the way
+            self._published[path] = at
+            since = self._commanded_at
+            if self.values.get(path) != value or (since is not None and before < since <= at):
                 self.values[path] = value
-                changed = True
-        if changed:
+                wake = True  # a changed value, or the first news since the command
+        if wake:
             self._wake.set()
 
     async def read(self) -> dict[str, Value]:
@@ -103,7 +145,10 @@ class EmulatedDriver(Driver, Inputs, Observes):
 
     async def write(self, commands: Mapping[str, Value]) -> None:
         for name, value in commands.items():
-            self.values[self._prefix + name] = value
+            path = self._prefix + name
+            if self.values.get(path) != value:
+                self.values[path] = value
+                self._commanded_at = time.time()
         self._wake.set()
 
     async def enter_safe_state(self) -> dict[str, Value]:
