@@ -179,12 +179,16 @@ class Station:
         return status is not None and bool(status.health) and all(h.healthy for h in status.health)
 
     def signal(self, name: str, sig: signal.Signals) -> float:
-        """Send `sig` to the process (never to anything else); returns time.monotonic() when sent."""
+        """Send `sig` to the process (never to anything else); returns time.monotonic() just before it
+        was sent: all the watcher records from the process's answer on is later (taken after the
+        signal, this thread could be descheduled while the thawed hub published and the watcher
+        recorded it: seen as 'no state after the thaw')."""
         process = self.processes[name]
         if not process.alive():
             raise RuntimeError(f"{name} is not running:\n{process.tail()}")
+        sent = time.monotonic()
         os.kill(process.pid, sig)
-        return time.monotonic()
+        return sent
 
     def kill(self, name: str) -> float:
         """kill -9; returns when it is gone (time.monotonic() of the signal)."""
