@@ -95,3 +95,15 @@ async def test_effects_on_own_variables_only_do_not_wait() -> None:
         await until(driver, timeout=1.0, run_m=True)
     finally:
         await driver.close()
+
+
+async def test_inputs_never_heard_of_are_not_waited_for() -> None:
+    """Tested alone (`hubctl test`, the robot's hub not running): the model's initial values are all
+    there will be, so nothing waits for news that cannot come."""
+    driver = EmulatedDriver(MODEL, "rsp", speed=FAST, input_wait=5.0)
+    await driver.connect()
+    try:
+        await driver.write({"lock_c": True})  # the robot at home (its initial pose): locks on nothing
+        await until(driver, timeout=1.0, locked_m=True, tool_m="none")
+    finally:
+        await driver.close()

@@ -12,7 +12,8 @@ news can reach this hub after the command does (another path, a busy machine); f
 older news the effect takes a branch the controller never saw. Seen under load: the tool
 changer, told to unlock at the dock while it still had the robot on its way there, kept
 the tool on the plate, a dead end for the station. The other hubs publish at their rate
-(50 Hz by default), so the wait is short; a silent one holds it at most `input_wait`.
+(50 Hz by default), so the wait is short; a silent one holds it at most `input_wait`,
+and one never heard of (its hub not running) not at all.
 """
 
 from __future__ import annotations
@@ -118,8 +119,10 @@ class EmulatedDriver(Driver, Inputs, Observes):
         left = since + self._input_wait - time.time()
         if left <= 0:
             return frozenset(), math.inf
+        # An input never heard of has no publisher to wait for (its hub is not running: the
+        # device tested alone, `hubctl test`): its initial value is all there will be.
         held = frozenset(name for name, paths in self._reads_inputs.items()
-                         if any(self._published.get(p, -math.inf) < since for p in paths))
+                         if any(self._published.get(p, math.inf) < since for p in paths))
         return held, (left if held else math.inf)
 
     def observe(self, values: Mapping[str, Value], published_at: float | None = None) -> None:
