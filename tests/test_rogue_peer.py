@@ -48,6 +48,10 @@ def station(tmp_path: Path) -> Iterator[Station]:
         s.start()
         s.wait_for(lambda: all((m := s.watch.state(r).mirror) is not None and m.controller.startswith("ctl-")
                                for r in ("nr", "ur")), 10, "every hub applies the controller's commands")
+        # The hubs can apply a first command sent before the watcher's subscription reached the
+        # controller (a loaded machine): the tests replay one the watcher recorded, re-sent at the command rate.
+        s.wait_for(lambda: all(controller_commands(s, r) for r in ("nr", "ur")), 10,
+                   "the watcher records the controller's commands")
         yield s
 
 
