@@ -99,8 +99,8 @@ class CouplerLink:
 class RobotLink:
     """Reads the fake UR controller's joint positions through its command port."""
 
-    def __init__(self, host: str, port: int) -> None:
-        self.host, self.port = host, port
+    def __init__(self, host: str, port: int, timeout: float = 1.0) -> None:
+        self.host, self.port, self.timeout = host, port, timeout
         self._streams: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None = None
 
     async def joints(self) -> list[float] | None:
@@ -108,12 +108,12 @@ class RobotLink:
             # asyncio.timeout, not wait_for: Python 3.11's wait_for loses a cancellation that comes as the
             # reply does, and this link is polled every 10 ms by a task the world cancels when it stops.
             if self._streams is None:
-                async with asyncio.timeout(1.0):
+                async with asyncio.timeout(self.timeout):
                     self._streams = await asyncio.open_connection(self.host, self.port)
             reader, writer = self._streams
             writer.write(b'{"cmd": "pose"}\n')
             await writer.drain()
-            async with asyncio.timeout(1.0):
+            async with asyncio.timeout(self.timeout):
                 line = await reader.readline()
             reply = json.loads(line)
             return [float(v) for v in reply["q"]]

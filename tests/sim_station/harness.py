@@ -180,7 +180,8 @@ class SimCell:
         tolerance of the pose's target, asked of the fake controller itself (its command port, as the
         world's flange coupling asks), not of the hub."""
         assert self.world is not None
-        link = RobotLink(self.world.server_of[resource].address, COMMAND_PORT)
+        # A probe of the test's, not the world's 10 ms poll: on a loaded machine the fake may take a while.
+        link = RobotLink(self.world.server_of[resource].address, COMMAND_PORT, timeout=10.0)
         try:
             q = await link.joints()
         finally:
