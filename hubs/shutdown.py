@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 
 from .drivers.base import DeviceUnavailable, Driver
 
@@ -32,6 +32,16 @@ async def wait_for_stop_or_crash(stop: asyncio.Event, tasks: Sequence[asyncio.Ta
         stopped.cancel()
 
 
+async def _each_within(drivers: Sequence[Driver], one: Callable[[Driver], Awaitable[None]], timeout: float) -> bool:
+    """`one(driver)` for every driver, all at once; False when they did not all end within `timeout` s."""
+    try:
+        async with asyncio.timeout(timeout):
+            await asyncio.gather(*(one(d) for d in drivers))
+    except TimeoutError:
+        return False
+    return True
+
+
 async def safe_state_on_exit(hub: str, drivers: Sequence[Driver], timeout: float = SAFE_STATE_ON_EXIT_S) -> None:
     """Every driver's `enter_safe_state`, all at once, for at most `timeout` seconds; failures are
     logged (the others still run)."""
@@ -43,13 +53,10 @@ async def safe_state_on_exit(hub: str, drivers: Sequence[Driver], timeout: float
         except Exception:
             log.exception("hub %s: could not drive the safe state of %s on exit", hub, driver.resource)
 
-    try:
-        async with asyncio.timeout(timeout):
-            await asyncio.gather(*(one(d) for d in drivers))
-    except TimeoutError:
-        log.error("hub %s: the safe state on exit took more than %.1f s; exiting anyway", hub, timeout)
-    else:
+    if await _each_within(drivers, one, timeout):
         log.info("hub %s: every output in its safe state on exit", hub)
+    else:
+        log.error("hub %s: the safe state on exit took more than %.1f s; exiting anyway", hub, timeout)
 
 
 async def close_drivers(drivers: Sequence[Driver], timeout: float) -> None:
@@ -61,8 +68,5 @@ async def close_drivers(drivers: Sequence[Driver], timeout: float) -> None:
         except Exception as exc:
             log.debug("%s: close failed: %s", driver.resource, exc)
 
-    try:
-        async with asyncio.timeout(timeout):
-            await asyncio.gather(*(one(d) for d in drivers))
-    except TimeoutError:
+    if not await _each_within(drivers, one, timeout):
         log.warning("the drivers' connections did not all close within %.1f s; exiting anyway", timeout)
