@@ -13,7 +13,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from common.ctl import (
+from common.model import RUNNING, Kind, OperationState, Predicate, Value
+from common.model.compiled import CompiledModel, State
+from common.wire.ctl import (
     Event,
     NoPlanFound,
     PlanFound,
@@ -24,8 +26,6 @@ from common.ctl import (
     ReplanReason,
     ShorterPlan,
 )
-from common.model import RUNNING, Kind, OperationState, Predicate, Value
-from common.model.compiled import CompiledModel, State
 
 from .engine import Engine, PlanProgress, TickResult
 from .planner import Budget, NoPlan, Plan, Planner
@@ -159,7 +159,7 @@ class ControlCore:
         self.paused = False  # the operator holds every deliberate transition: plan steps and operation starts
         self.forced: dict[int, Force] = {}  # by state index
         self._blocked: frozenset[str] = frozenset()  # writing a forced or reading an unknown variable
-        self.unknown: frozenset[int] = frozenset()  # command variables of held resources (controller/hold.py)
+        self.unknown: frozenset[int] = frozenset()  # command variables of held resources (controller/command_hold.py)
         self.listener: InputListener | None = None  # told the values loaded and unknown beside the loop's inputs
         self.safety = SafetyMonitor(compiled)
         self._deliberate_names = frozenset(t.name for t in compiled.deliberate)

@@ -27,9 +27,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
-from common.ctl import ReplanCause, ReplanReason
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
+from common.wire.ctl import ReplanCause, ReplanReason
 
 from .planner import Plan
 

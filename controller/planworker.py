@@ -27,7 +27,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
-from common.ctl import PlannedAlone
+from common.wire.ctl import PlannedAlone
 
 from .control import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, PlanRequest, anytime_answers, live_budget
 from .planner import NoPlan, Plan, Planner

@@ -44,11 +44,11 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from common.bus import Bus, Request
-from common.ctl import ACTIONS, ConsoleReply, ConsoleRequest, ReplanCause, ReplanReason, RequestAnswered
-from common.messages import MessageError, decode, encode
+from common.bus.protocol import Bus, Request
 from common.model import Kind, OperationState, Predicate, Value
 from common.model.predicates import And, format_value
+from common.wire.ctl import ACTIONS, ConsoleReply, ConsoleRequest, ReplanCause, ReplanReason, RequestAnswered
+from common.wire.messages import MessageError, decode, encode
 
 from .control import ControlCore
 

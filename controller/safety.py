@@ -9,7 +9,7 @@ not plan; the specification and the values that make it hold are reported once, 
 clears. A console force that would make a specification hold is refused unless overridden.
 
 A specification that reads a command variable whose value the controller does not know (a resource held
-after a restart, `controller/hold.py`) is not evaluated: its verdict would rest on a guess.
+after a restart, `controller/command_hold.py`) is not evaluated: its verdict would rest on a guess.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from common.ctl import Event, ForbiddenState, ForbiddenStateCleared
 from common.model import Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.model.predicates import And, Or, format_value
+from common.wire.ctl import Event, ForbiddenState, ForbiddenStateCleared
 
 log = logging.getLogger("statehub.controller.safety")
 

@@ -7,7 +7,7 @@ mirror-watchdog, and publishes status and state under `{station}/ctl/`.
 
 On start it restores what it persisted, waits (bounded) for every hub's mirror, takes
 the command state from the mirrors, and goes on where it was; a resource whose mirror is
-late is held, sent nothing, until it comes (controller/hold.py).
+late is held, sent nothing, until it comes (controller/command_hold.py).
 """
 
 from __future__ import annotations
@@ -23,10 +23,13 @@ from typing import Any
 
 import msgspec
 
-from common.badpayload import BadPayloads
-from common.bus import Bus, Sample
-from common.config import StationConfig
-from common.ctl import (
+from common.bus.protocol import Bus, Sample
+from common.config.hubs_toml import StationConfig
+from common.model import Kind, Model, Value
+from common.plumbing.sdnotify import Notifier
+from common.plumbing.tasks import cancel_and_wait
+from common.wire.badpayload import BadPayloads
+from common.wire.ctl import (
     EVENT_WINDOW,
     HubAlive,
     HubGone,
@@ -38,18 +41,15 @@ from common.ctl import (
     StateSnapshot,
     StatusMessage,
 )
-from common.messages import Codec, HubStatus, MessageError, encode
-from common.model import Kind, Model, Value
-from common.recording.schema import RunMeta
-from common.sdnotify import Notifier
-from common.tasks import cancel_and_wait
+from common.wire.messages import Codec, HubStatus, MessageError, encode
+from controller.command_hold import CommandHold
+from controller.recording.hooks import RunRecorder, StepClock, open_recording
+from controller.recording.schema import RunMeta
+from controller.station_hold import StationHold
 
 from .control import PlanRequest
-from .hold import CommandHold
-from .holder import StationHold
 from .planner import NoPlan, Plan
 from .planworker import READY_WAIT_S, PlannerProcess
-from .recorder import RunRecorder, StepClock, open_recording
 from .requests import Requests
 from .stack import build_controller_stack
 from .state import StateStore

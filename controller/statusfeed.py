@@ -21,8 +21,9 @@ from collections.abc import Callable, Sequence
 
 import msgspec
 
-from common.bus import Bus, Request
-from common.ctl import (
+from common.bus.protocol import Bus, Request
+from common.model.compiled import CompiledModel, State
+from common.wire.ctl import (
     Event,
     PlanDetails,
     PlanInfo,
@@ -31,9 +32,8 @@ from common.ctl import (
     StatusMessage,
     done_mask,
 )
-from common.keys import Keys
-from common.messages import encode
-from common.model.compiled import CompiledModel, State
+from common.wire.keys import Keys
+from common.wire.messages import encode
 
 from .control import ControlCore
 from .planner import Plan, PlanStep

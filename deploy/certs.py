@@ -24,8 +24,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from common.config import StationConfig, load_config
-from common.security import ROLES, Identity, Role, SecurityError, cert_dir, roles_of
+from common.config.hubs_toml import StationConfig, load_config
+from common.config.security import ROLES, Identity, Role, SecurityError, cert_dir, roles_of
 
 CA_DAYS = 3650
 LEAF_DAYS = 825

@@ -10,13 +10,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from common.config import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
+from common.config.hubs_toml import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
 from common.model import Model, ParseError, parse_predicate
-from common.process import EXPECTED_ERRORS, one_line, positive
+from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
-from controller import process as controller_process
-from hubs import process as hub_process
-from hubs.process import parse_failures
+from controller import main as controller_process
+from hubs import main as hub_process
+from hubs.main import parse_failures
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -177,7 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def with_model(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-        p.add_argument("--model", default=DEFAULT_MODEL, help=f"station model as module:function ({DEFAULT_MODEL})")
+        p.add_argument("--model", default=DEFAULT_MODEL,
+                       help=f"station model: module:function or file.py:function ({DEFAULT_MODEL})")
         return p
 
     def with_config(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

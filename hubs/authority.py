@@ -1,4 +1,4 @@
-"""Whose commands a hub applies: only the station's holder's (common/holder.py), in its epoch.
+"""Whose commands a hub applies: only the station's holder's (common/wire/holder_token.py), in its epoch.
 
 `Authority` follows the holder tokens (`{station}/ctl/holder/**`) and says, for each command
 payload, whether it comes from the live holder that ranks highest; `seq` is ordered per
@@ -15,11 +15,11 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from common.badpayload import BadPayloads
-from common.bus import Bus, Sample
-from common.holder import Holder, highest
-from common.keys import Keys
-from common.messages import Codec, CommandSender, DomainError, MessageError, ModelMismatch
+from common.bus.protocol import Bus, Sample
+from common.wire.badpayload import BadPayloads
+from common.wire.holder_token import Holder, highest
+from common.wire.keys import Keys
+from common.wire.messages import Codec, CommandSender, DomainError, MessageError, ModelMismatch
 
 log = logging.getLogger("statehub.hub")
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import msgspec
 
-from common.config import ConfigError, ConfigProblem, KeyLines, StationConfig
+from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, StationConfig
 from common.model import Model
 
 from .drivers.base import Driver

@@ -24,13 +24,13 @@ from typing import Any
 
 import msgspec
 
-from common.bus import Bus, Request
-from common.ctl import StateSnapshot
-from common.keys import station_keys
-from common.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
+from common.bus.protocol import Bus, Request
 from common.model import Kind, Model, Value
-from common.sdnotify import Notifier
-from common.tasks import cancel_and_wait
+from common.plumbing.sdnotify import Notifier
+from common.plumbing.tasks import cancel_and_wait
+from common.wire.ctl import StateSnapshot
+from common.wire.keys import station_keys
+from common.wire.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
 
 from .authority import Authority
 from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport

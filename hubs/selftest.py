@@ -2,7 +2,7 @@
 
 The hub publishes the report at start (and answers queries for it); `hubctl selftest
 HUB` runs the same checks without the bus, prints them and exits non-zero on a
-failure so that systemd refuses to start a broken hub. The report itself: common/selftest.py.
+failure so that systemd refuses to start a broken hub. The report itself: common/wire/selftest_report.py.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import contextlib
 import time
 from collections.abc import Iterable, Mapping
 
-from common.selftest import CheckMessage, DeviceReport, SelftestMessage
+from common.wire.selftest_report import CheckMessage, DeviceReport, SelftestMessage
 
 from .drivers.base import Driver, SelftestReport
 

@@ -21,9 +21,9 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from common.bus import Request
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.protocol import Request
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
 
 
 def say(line: str) -> None:

@@ -27,7 +27,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 def recordings_in_a_temporary_directory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """Runs record by default (common/recording): the suite's go to a temporary directory, not ./var/runs
     (controllers started as processes inherit the variable)."""
-    from common.recording.writer import RECORDING_DIR_ENV
+    from controller.recording.writer import RECORDING_DIR_ENV
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv(RECORDING_DIR_ENV, str(tmp_path_factory.mktemp("runs")))

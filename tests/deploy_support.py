@@ -8,7 +8,7 @@ from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.config import StationConfig, load_config
+from common.config.hubs_toml import StationConfig, load_config
 from deploy.remote.cli import register_deploy_commands
 
 REPO = Path(__file__).resolve().parent.parent

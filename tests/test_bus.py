@@ -21,12 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Bus, BusClosed, LivelinessEvent, Request, Sample
-from common.inbox import Inbox
-from common.keys import KeyExprError, Keys
-from common.process import free_port
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.inbox import Inbox
+from common.bus.protocol import Bus, BusClosed, LivelinessEvent, Request, Sample
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.plumbing.lifecycle import free_port
+from common.wire.keys import KeyExprError, Keys
 
 PEER = Path(__file__).with_name("bus_peer.py")
 STARTUP = 20.0  # generous bound for a peer to start and connect on a loaded machine

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from common.config import ConfigError, KeyLines, StationConfig, check_against_model, load_config, parse_config
-from common.hostnames import host_problem
+from common.config.hostnames import host_problem
+from common.config.hubs_toml import ConfigError, KeyLines, StationConfig, check_against_model, load_config, parse_config
 from common.model import Model, Resource, command, measured
 
 REPO_FILE = Path(__file__).resolve().parent.parent / "hubs.toml"
@@ -253,7 +253,7 @@ real = 1
 @pytest.mark.parametrize("mode", ["real", "sim"])
 def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: str) -> None:
     """Switching a device to real (or sim) needs no other edit: its driver's parameters are all there."""
-    from common.config import load_station
+    from common.config.hubs_toml import load_station
     from hubs.drivers.base import Driver
     from hubs.drivers.registry import driver_types
     from hubs.factory import build_drivers

@@ -26,8 +26,8 @@ import pytest
 from textual.pilot import Pilot
 from textual.widgets import Static
 
-from common.ctl import ConsoleReply, RequestAnswered
 from common.model import OperationState
+from common.wire.ctl import ConsoleReply, RequestAnswered
 from controller.console.app import ConsoleApp
 from controller.console.link import ConsoleLink
 from controller.console.station import StationInfo

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 from textual.app import App, ComposeResult
 
-from common.config import load_station
-from common.ctl import (
+from common.config.hubs_toml import load_station
+from common.model import Kind, OperationState
+from common.wire.ctl import (
     ConsoleEvent,
     ControllerChanged,
     ForbiddenState,
@@ -31,8 +32,7 @@ from common.ctl import (
     StatusMessage,
     Unhealthy,
 )
-from common.messages import decode, encode
-from common.model import Kind, OperationState
+from common.wire.messages import decode, encode
 from controller.console.station import StationInfo
 from controller.console.table import RowTable
 from controller.console.view import (

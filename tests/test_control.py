@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from common.ctl import NoPlanFound, PlanFound, PlanKept, ReplanReason
 from common.model import Domain, Model, OperationState, Phase, Resource, ability, command, measured, operation
 from common.model.compiled import CompiledModel
+from common.wire.ctl import NoPlanFound, PlanFound, PlanKept, ReplanReason
 from controller.control import ControlCore, PlanRequest
 from controller.planner import NoPlan, Plan, Planner
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 from deploy_support import REPO, Run, hubctl, station_toml
 
-from common.process import free_port
+from common.plumbing.lifecycle import free_port
 from deploy.remote.wheel import Wheel, build_wheel
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]  # a hung ssh must not hang the suite

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from common.ctl import ReplanReason
 from common.model import (
     Domain,
     Model,
@@ -19,6 +18,7 @@ from common.model import (
     tracking,
 )
 from common.model.compiled import CompiledModel
+from common.wire.ctl import ReplanReason
 from controller.engine import Engine, PlanProgress
 from controller.planner import Plan, Planner
 from tests.test_model import nutrunner_resource

@@ -21,13 +21,13 @@ import msgspec
 import pytest
 from test_hub_runtime import Hub, RecordingDriver
 
-from common.badpayload import BadPayloads
-from common.holder import Holder, declare_holder
-from common.membus import MemoryBus, MemoryHub
-from common.messages import Codec, HubStatus, OversizedPayload
+from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.model import Domain, Resource, command, measured
-from controller.holder import ControllerConflict, StationHold
+from common.wire.badpayload import BadPayloads
+from common.wire.holder_token import Holder, declare_holder
+from common.wire.messages import Codec, HubStatus, OversizedPayload
 from controller.state import StateStore
+from controller.station_hold import ControllerConflict, StationHold
 
 
 def nutrunner() -> RecordingDriver:

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from common.messages import HubStatus
 from common.model import OperationState
+from common.wire.messages import HubStatus
 from tests.fault_station.checks import (
     POSE_OF,
     RUN_TIMEOUT_S,

@@ -7,7 +7,7 @@ import socket
 
 import pytest
 
-from common.process import _ephemeral_ports, free_port
+from common.plumbing.lifecycle import _ephemeral_ports, free_port
 
 
 def test_a_free_port_is_below_the_ephemeral_range_and_can_be_bound() -> None:
@@ -21,7 +21,7 @@ def test_a_free_port_is_below_the_ephemeral_range_and_can_be_bound() -> None:
 
 
 def test_a_port_in_use_is_not_chosen(monkeypatch: pytest.MonkeyPatch) -> None:
-    import common.process as process
+    import common.plumbing.lifecycle as process
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

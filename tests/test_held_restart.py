@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from common.ctl import MirrorsMissing
 from common.model import OperationState
+from common.wire.ctl import MirrorsMissing
 from tests.fault_station.checks import RUN_TIMEOUT_S, assert_station_done_each_bolt_once, controller_commands, op_states
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLTS

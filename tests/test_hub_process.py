@@ -15,15 +15,15 @@ import msgspec
 import pytest
 from hub_process import HubProcess
 
-from common.bus import Bus
-from common.config import load_station
-from common.holder import declare_holder
-from common.keys import station_keys
-from common.messages import SCHEMA, Codec, HubStatus, decode
-from common.process import free_port
-from common.selftest import SelftestMessage
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.protocol import Bus
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import load_station
+from common.plumbing.lifecycle import free_port
+from common.wire.holder_token import declare_holder
+from common.wire.keys import station_keys
+from common.wire.messages import SCHEMA, Codec, HubStatus, decode
+from common.wire.selftest_report import SelftestMessage
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hubs.toml"

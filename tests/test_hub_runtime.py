@@ -1,4 +1,4 @@
-"""The hub runtime and the driver contract, in one process on the in-memory bus (common.membus).
+"""The hub runtime and the driver contract, in one process on the in-memory bus (common.bus.memory_bus).
 
 * the safe state: the hub has the driver enter it at start and when commands stop, mirrors
   exactly the command values the driver says it applied, writes nothing else, and applies
@@ -14,12 +14,12 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from common.bus import Sample, Subscription
-from common.holder import declare_holder
-from common.keys import station_keys
-from common.membus import MemoryBus, MemoryHub
-from common.messages import Codec, HubStatus
+from common.bus.memory_bus import MemoryBus, MemoryHub
+from common.bus.protocol import Sample, Subscription
 from common.model import Model, Resource, Value, command, measured
+from common.wire.holder_token import declare_holder
+from common.wire.keys import station_keys
+from common.wire.messages import Codec, HubStatus
 from hubs.drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from hubs.runtime import HubRuntime
 

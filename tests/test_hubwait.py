@@ -13,13 +13,13 @@ import sys
 import pytest
 from deploy_support import REPO, station_toml
 
-from common.bus import Bus, Request
-from common.config import parse_config
-from common.keys import station_keys
-from common.messages import encode
-from common.process import free_port
-from common.zenoh_config import zenoh_config, zenoh_config_for
-from common.zenohbus import ZenohBus
+from common.bus.protocol import Bus, Request
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config, zenoh_config_for
+from common.config.hubs_toml import parse_config
+from common.plumbing.lifecycle import free_port
+from common.wire.keys import station_keys
+from common.wire.messages import encode
 from deploy.remote.deploy import Waiting, wait_step
 from deploy.remote.hubwait import HubWaitError, HubWatch, watch_config, watch_endpoints
 from deploy.remote.progress import Progress, StepFailed

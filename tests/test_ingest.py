@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Sample
-from common.config import load_station
-from common.messages import HubStatus
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.protocol import Sample
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import load_station
+from common.wire.messages import HubStatus
 from controller.service import ControllerService
 
 STATION = Path(__file__).resolve().parent / "fault_station" / "hubs.toml"

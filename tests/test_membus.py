@@ -17,12 +17,12 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from common.bus import Bus, BusClosed, LivelinessEvent, Reply, Request, Sample, Subscription
-from common.keys import KeyExprError
-from common.membus import MemoryBus, MemoryHub, intersects, key_chunks
-from common.process import free_port
-from common.zenoh_config import loopback_endpoint, zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.memory_bus import MemoryBus, MemoryHub, intersects, key_chunks
+from common.bus.protocol import Bus, BusClosed, LivelinessEvent, Reply, Request, Sample, Subscription
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import loopback_endpoint, zenoh_config
+from common.plumbing.lifecycle import free_port
+from common.wire.keys import KeyExprError
 
 STARTUP = 20.0  # generous bound for zenoh peers to link on a loaded machine
 

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Sample, Subscription
-from common.config import load_station
-from common.ctl import HubGone, StatusMessage
-from common.membus import MemoryBus, MemoryHub
-from common.messages import Codec, MessageError
-from common.statusview import StatusFollower
+from common.bus.memory_bus import MemoryBus, MemoryHub
+from common.bus.protocol import Sample, Subscription
+from common.config.hubs_toml import load_station
+from common.wire.ctl import HubGone, StatusMessage
+from common.wire.messages import Codec, MessageError
+from controller.console.statusview import StatusFollower
 from controller.service import ControllerService
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime

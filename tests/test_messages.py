@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from common.messages import (
+from common.model import Domain, Resource, Variable, command, estimated, measured
+from common.wire.messages import (
     SCHEMA,
     Codec,
     DomainError,
@@ -23,7 +24,6 @@ from common.messages import (
     encode,
     model_hash,
 )
-from common.model import Domain, Resource, Variable, command, estimated, measured
 
 
 def nutrunner(name: str = "nr") -> Resource:

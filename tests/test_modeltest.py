@@ -28,13 +28,13 @@ from pathlib import Path
 import pytest
 from hub_process import HubProcess, running_hub
 
-from common.config import load_station
-from common.keys import Keys, station_keys
-from common.messages import Codec
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import load_station
 from common.model import Model, Phase, Resource, ability, command, measured
-from common.process import free_port
+from common.plumbing.lifecycle import free_port
 from common.resources import nutrunner
-from common.zenoh_config import zenoh_config
+from common.wire.keys import Keys, station_keys
+from common.wire.messages import Codec
 from deploy.modeltest import ModelTestFailed, Options, ResourceOracle, Target, model_based_test, run_model_test
 from deploy.modeltest.checker import EFFECT_NOT_OBSERVED, UNEXPLAINED_CHANGE, Checker, Observation, Violation
 from deploy.modeltest.cli import Refused, select_resources

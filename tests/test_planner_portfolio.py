@@ -22,12 +22,13 @@ from common.model import (
     operation,
 )
 from common.model.compiled import CompiledModel
-from common.stations import engine_assembly, synthetic
+from common.stations import engine_assembly
 from controller.planner import Budget, NoPlan, Plan, Planner, validate_plan
 from controller.planner.relaxed import RelaxedModel
 from controller.planner.steps import StepSystem
 from controller.stack import build_controller_stack
 from deploy.local.statefile import load_state
+from tests.stations import synthetic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -142,7 +143,7 @@ def test_a_copy_carries_values_its_source_gains_after_the_copy_was_first_applied
 def test_same_seed_same_run_whatever_the_hash_seed() -> None:
     """Search work is counted, not timed, and nothing iterates in hash order: two interpreters with
     different string hashing plan the same run."""
-    script = ("from common.stations import synthetic\n"
+    script = ("from tests.stations import synthetic\n"
               "from deploy.local.inprocess import run_in_process\n"
               "lines = []\n"
               "s = run_in_process(synthetic.build_model(8), seed=3, report=lines.append)\n"

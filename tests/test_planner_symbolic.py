@@ -15,7 +15,6 @@ from hypothesis import HealthCheck, given, settings
 
 from common.model import Model, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
-from common.stations import synthetic
 from controller.planner import NoPlan, Plan, Planner, breadth_first
 from controller.planner import symbolic_encoding as symbolic_module
 from controller.planner.bfs import micro_steps
@@ -25,6 +24,7 @@ from controller.planner.symbolic import SymbolicPlanner, SymbolicResult
 from controller.planner.validate import check_plan, plan_from_moves
 from tests import test_planner as examples
 from tests import test_planner_properties as properties
+from tests.stations import synthetic
 
 
 def checked(

@@ -1,6 +1,6 @@
 """A process asked to stop ends: tasks that swallow their cancellation are cancelled again
-(common/tasks.py), and a process stuck anyway exits within its guard with every thread's stack
-printed (common/process.py `stop_on_signals`)."""
+(common/plumbing/tasks.py), and a process stuck anyway exits within its guard with every thread's stack
+printed (common/plumbing/lifecycle.py `stop_on_signals`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from common.tasks import cancel_and_wait
+from common.plumbing.tasks import cancel_and_wait
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,7 +65,7 @@ async def test_a_task_that_never_ends_is_named_and_left_behind_within_the_bound(
 
 STUCK_PROCESS = textwrap.dedent("""
     import asyncio, sys, time
-    from common.process import stop_on_signals
+    from common.plumbing.lifecycle import stop_on_signals
 
     def hang_for_good() -> None:
         time.sleep(3600)  # a driver call that never returns, holding the loop

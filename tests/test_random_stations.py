@@ -1,6 +1,6 @@
 """Property: every random small station whose operations are reachable runs to completion in process.
 
-Stations come from `common.stations.random_station.build_random_station(seed)` (standard
+Stations come from `tests.stations.random_station.build_random_station(seed)` (standard
 device templates, random operations and forbidden zones); each run is the in-process
 controller against the model's own effects in virtual time (`deploy.local.inprocess.run_in_process`),
 the nutrunner failing now and then. A station that does not finish must have an
@@ -15,11 +15,11 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from common.model import Model
-from common.stations.random_station import build_random_station
 from controller.planner import check_operations
 from controller.stack import build_controller_stack
 from controller.synthesis import synthesize
 from deploy.local.inprocess import run_in_process
+from tests.stations.random_station import build_random_station
 
 SEEDS = st.integers(min_value=0, max_value=2**31 - 1)
 

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from common.config import ConfigError, RecordingConfig, parse_config
-from common.ctl import HubGone
-from common.recording.reader import RecordingError, list_runs, open_run
-from common.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
-from common.recording.writer import RECORDING_DIR_ENV, RecordingWriter
+from common.config.hubs_toml import ConfigError, RecordingConfig, parse_config
 from common.stations import load_model
-from controller.recorder import RunRecorder, open_recording
+from common.wire.ctl import HubGone
+from controller.recording.hooks import RunRecorder, open_recording
+from controller.recording.reader import RecordingError, list_runs, open_run
+from controller.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
+from controller.recording.writer import RECORDING_DIR_ENV, RecordingWriter
 from controller.stack import build_controller_stack
 
 MB = 1024 * 1024
@@ -123,8 +123,8 @@ def test_a_record_that_cannot_be_encoded_is_dropped_and_counted_and_the_rest_wri
 
 KILLED_CONTROLLER = """
 import os, signal, sys
-from common.recording.schema import RecordKind, RunMeta, TickRecord
-from common.recording.writer import RecordingWriter
+from controller.recording.schema import RecordKind, RunMeta, TickRecord
+from controller.recording.writer import RecordingWriter
 w = RecordingWriter(sys.argv[1], RunMeta(station="s", mode="service", started=1000.0), max_bytes=1 << 20, keep=3)
 for i in range(500):
     w.put(float(i), RecordKind.TICK, "", TickRecord())

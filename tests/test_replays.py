@@ -14,13 +14,13 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from common.config import RecordingConfig
-from common.recording.reader import list_runs, open_run
-from common.recording.schema import CommandRecord, RecordKind, RunMeta
-from common.recording.writer import RECORDING_DIR_ENV
+from common.config.hubs_toml import RecordingConfig
 from common.stations import load_model
-from common.timeline.model import build_timeline
-from controller.recorder import open_recording
+from controller.recording.hooks import open_recording
+from controller.recording.reader import list_runs, open_run
+from controller.recording.schema import CommandRecord, RecordKind, RunMeta
+from controller.recording.writer import RECORDING_DIR_ENV
+from controller.timeline.model import build_timeline
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import run_in_process
 from deploy.replay.replay import Replayer

@@ -11,11 +11,11 @@ import asyncio
 
 import pytest
 
-from common.bus import Request
-from common.ctl import ConsoleReply, ConsoleRequest, RequestAnswered
-from common.messages import decode, encode
+from common.bus.protocol import Request
 from common.model import Domain, Model, OperationState, Value, estimated, operation, tracking
 from common.resources import nutrunner, operator, ur
+from common.wire.ctl import ConsoleReply, ConsoleRequest, RequestAnswered
+from common.wire.messages import decode, encode
 from controller.requests import Requests, coerce
 from controller.stack import build_controller_stack
 

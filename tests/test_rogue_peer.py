@@ -24,13 +24,13 @@ import msgspec
 import pytest
 from hub_process import ROOT, HubProcess
 
-from common.config import load_station
-from common.holder import declare_holder
-from common.messages import Codec, HubStatus
-from common.process import free_port
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
-from controller.holder import EXIT_CONFLICT
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import load_station
+from common.plumbing.lifecycle import free_port
+from common.wire.holder_token import declare_holder
+from common.wire.messages import Codec, HubStatus
+from controller.station_hold import EXIT_CONFLICT
 from tests.fault_station.checks import controller_commands
 from tests.fault_station.harness import Station
 from tests.fault_station.watcher import Seen

@@ -1,4 +1,4 @@
-"""Safety on every path (controller/safety.py, controller/hold.py), on the reference station's control core
+"""Safety on every path (controller/safety.py, controller/command_hold.py), on the reference station's control core
 without I/O, and on the controller service with hubs over the in-memory bus.
 
 * A console force into a state a specification forbids is refused (naming it) and changes nothing; with
@@ -20,7 +20,9 @@ from pathlib import Path
 
 import pytest
 
-from common.ctl import (
+from common.model import Kind, Value
+from common.stations.engine_assembly import DOCK_POSES, HOME, build_model
+from common.wire.ctl import (
     ConsoleReply,
     ConsoleRequest,
     ForbiddenState,
@@ -30,9 +32,7 @@ from common.ctl import (
     ReplanReason,
     StatusMessage,
 )
-from common.messages import decode, encode
-from common.model import Kind, Value
-from common.stations.engine_assembly import DOCK_POSES, HOME, build_model
+from common.wire.messages import decode, encode
 from controller.control import ControlCore
 from controller.requests import Requests
 from controller.service import ControllerService

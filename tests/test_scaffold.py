@@ -24,7 +24,7 @@ import msgspec
 import pytest
 from scaffold_support import generated_projects_removed, install, venv_lock
 
-from common.config import load_station
+from common.config.hubs_toml import load_station
 from common.model import Model, Resource
 from deploy.cli import main as hubctl
 from deploy.scaffold.device import check_same_contract

@@ -1,4 +1,4 @@
-"""systemd's notify protocol (common/sdnotify.py): READY=1 once, WATCHDOG=1 from the hub's loop, nothing
+"""systemd's notify protocol (common/plumbing/sdnotify.py): READY=1 once, WATCHDOG=1 from the hub's loop, nothing
 without $NOTIFY_SOCKET. A datagram socket of the test stands in for systemd."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from common.config import load_station
-from common.membus import MemoryBus, MemoryHub
-from common.sdnotify import Notifier
+from common.bus.memory_bus import MemoryBus, MemoryHub
+from common.config.hubs_toml import load_station
+from common.plumbing.sdnotify import Notifier
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime
 from tests.test_memory_station import FAULT_STATION

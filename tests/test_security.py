@@ -25,15 +25,15 @@ import pytest
 import zenoh
 from hub_process import HubProcess
 
-from common.acl import access_control
-from common.config import ConfigError, StationConfig, load_station
-from common.ctl import ConsoleRequest, StateSnapshot, StatusMessage
-from common.messages import Codec, HubStatus, decode, encode
+from common.bus.station_net import station_zenoh_config
+from common.bus.zenoh_config import zenoh_config
+from common.config.acl import access_control
+from common.config.hubs_toml import ConfigError, StationConfig, load_station
+from common.config.security import SecurityError, identity_of, tls_files
 from common.model import Model
-from common.process import free_port
-from common.security import SecurityError, identity_of, tls_files
-from common.station_net import station_zenoh_config
-from common.zenoh_config import zenoh_config
+from common.plumbing.lifecycle import free_port
+from common.wire.ctl import ConsoleRequest, StateSnapshot, StatusMessage
+from common.wire.messages import Codec, HubStatus, decode, encode
 from deploy.certs import identities_for, init_ca, issue, issue_for_station, role_in_certificate
 from deploy.remote.deploy import hub_cert_files
 from deploy.remote.layout import Layout

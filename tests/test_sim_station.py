@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from common.config import load_station
+from common.config.hubs_toml import load_station
 from common.stations import engine_assembly as ea
 from deploy.local.simworld import SimWorld
 from deploy.local.station import Options, run_station

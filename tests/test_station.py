@@ -32,7 +32,8 @@ from common.model import (
     operation,
 )
 from common.resources.ur import neighbours
-from common.stations import engine_assembly, synthetic
+from common.stations import engine_assembly
+from tests.stations import synthetic
 
 State = dict[str, Value]
 

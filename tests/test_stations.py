@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from common.config import ConfigError, load_config, load_station, parse_config
+from common.config.hubs_toml import ConfigError, load_config, load_station, parse_config
 from common.model import Model, OperationState, Value, estimated, operation, tracking
 from common.model.compiled import CompiledModel
 from common.resources import nutrunner, ur
-from common.stations import machine_tending, shared_workspace
+from common.stations import load_model
 from controller.engine import Engine
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import run_in_process
@@ -30,10 +30,7 @@ from deploy.local.station import Options, run_station
 from hubs.factory import build_drivers, check_devices, effective_mode
 
 ROOT = Path(__file__).resolve().parent.parent
-STATIONS = {
-    "machine_tending": machine_tending,
-    "shared_workspace": shared_workspace,
-}
+STATIONS = ("machine_tending", "shared_workspace")
 CUSTOM_TYPES = {
     "machine_tending": {"gripper", "conveyor", "cnc", "cnc_door"},
     "shared_workspace": {"vacuum_gripper", "fixture"},
@@ -44,10 +41,21 @@ def example(station: str) -> Path:
     return ROOT / "examples" / station / "hubs.toml"
 
 
+def example_text(station: str) -> str:
+    """The example's hubs.toml, to be written elsewhere: its model file named by its absolute path."""
+    model = ROOT / "examples" / station / "model.py"
+    return example(station).read_text().replace('model = "model.py:build_model"', f'model = "{model}:build_model"')
+
+
+def example_model(station: str) -> Model:
+    """The example's model, from the file next to its hubs.toml."""
+    return load_model(f"{ROOT / 'examples' / station / 'model.py'}:build_model")
+
+
 @pytest.fixture(scope="module", params=sorted(STATIONS))
 def station(request: pytest.FixtureRequest) -> tuple[str, Model]:
     name = request.param
-    return name, STATIONS[name].build_model()
+    return name, example_model(name)
 
 
 # --- the models ----------------------------------------------------------------------------------
@@ -64,7 +72,7 @@ def test_station_is_valid_and_of_a_realistic_size(station: tuple[str, Model]) ->
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(STATIONS))
 def test_hubctl_check_finds_every_operation_reachable(name: str, capsys: pytest.CaptureFixture[str]) -> None:
-    assert hubctl(["check", "--model", f"common.stations.{name}:build_model"]) == 0
+    assert hubctl(["check", "--model", f"{ROOT / 'examples' / name / 'model.py'}:build_model"]) == 0
     assert "0 unreachable" in capsys.readouterr().out
 
 
@@ -94,7 +102,7 @@ DOOR_OPEN = {"door.open_c": True, "door.pos_m": "open"}
       "gripper.close_c": True}, ["raw_part_to_outfeed"]),
 ])
 def test_machine_tending_specifications(changes: dict[str, Value], violated: list[str]) -> None:
-    assert _violated(machine_tending.build_model(), changes) == violated
+    assert _violated(example_model("machine_tending"), changes) == violated
 
 
 @pytest.mark.parametrize(("changes", "violated"), [
@@ -113,7 +121,7 @@ def test_machine_tending_specifications(changes: dict[str, Value], violated: lis
     ({"nr_b.run_m": True, "ur_b.pos_m": "bench1", "ur_b.ref_pos_c": "bench1"}, []),
 ])
 def test_shared_workspace_specifications(changes: dict[str, Value], violated: list[str]) -> None:
-    assert _violated(shared_workspace.build_model(), changes) == violated
+    assert _violated(example_model("shared_workspace"), changes) == violated
 
 
 # --- running them -------------------------------------------------------------------------------
@@ -141,7 +149,7 @@ async def test_station_runs_to_completion_as_processes_over_zenoh(name: str, tmp
     code = await run_station(options, say=lines.append)
     output = "\n".join(lines)
     print(f"{name} over Zenoh: {time.monotonic() - began:.1f} s\n{lines[-1] if lines else ''}")
-    total = len(STATIONS[name].build_model().operations)
+    total = len(example_model(name).operations)
     assert code == 0, output
     assert f"finished: {total}/{total} operations" in output, output
 
@@ -164,7 +172,7 @@ def test_up_over_processes_refuses_a_model_its_processes_would_not_load(capsys: 
     config = str(example("machine_tending"))
     assert hubctl(["up", "--config", config, "--model", "tests.test_stations:one_bolt"]) == 2
     err = capsys.readouterr().err
-    assert "--model tests.test_stations:one_bolt" in err and "common.stations.machine_tending:build_model" in err
+    assert "--model tests.test_stations:one_bolt" in err and "examples/machine_tending/model.py:build_model" in err
 
 
 def test_up_names_a_missing_config(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
@@ -225,7 +233,7 @@ def test_station_types_are_accepted_in_emulate_mode(capsys: pytest.CaptureFixtur
 
 @pytest.mark.parametrize("mode", ["sim", "real"])
 def test_a_station_type_outside_emulate_mode_names_type_hub_file_and_line(mode: str, tmp_path: Path) -> None:
-    text = example("machine_tending").read_text()
+    text = example_text("machine_tending")
     door = '[hubs.machine.devices.door]\ntype = "cnc_door"\nmode = "emulate"'
     assert door in text
     path = tmp_path / "hubs.toml"
@@ -242,7 +250,7 @@ def test_a_station_type_outside_emulate_mode_names_type_hub_file_and_line(mode: 
 
 
 def test_config_check_reports_a_station_type_in_sim_mode(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    text = example("shared_workspace").read_text().replace('type = "fixture"\nmode = "emulate"',
+    text = example_text("shared_workspace").replace('type = "fixture"\nmode = "emulate"',
                                                             'type = "fixture"\nmode = "sim"')
     path = tmp_path / "hubs.toml"
     path.write_text(text)
@@ -254,7 +262,7 @@ def test_config_check_reports_a_station_type_in_sim_mode(tmp_path: Path, capsys:
 
 
 def test_a_misspelt_type_is_caught_against_the_model_with_the_other_problems(tmp_path: Path) -> None:
-    text = example("machine_tending").read_text()
+    text = example_text("machine_tending")
     text = text.replace('[hubs.conveyors.devices.outfeed]\ntype = "conveyor"',
                         '[hubs.conveyors.devices.outfeed]\ntype = "conveyer"')
     text = text.replace("lease_ms = 2000", "lease_ms = 20")
@@ -283,5 +291,13 @@ def test_hubs_emulate_station_types_from_the_model_alone() -> None:
 
 
 def test_a_station_type_parses_without_the_model() -> None:
-    config = parse_config(example("shared_workspace").read_text(), "hubs.toml")
+    config = parse_config(example_text("shared_workspace"), str(example("shared_workspace")))
     assert config.device("vac_a").type == "vacuum_gripper" and config.device("vac_a").mode == "emulate"
+
+
+def test_deploy_refuses_a_model_file_that_the_release_would_not_carry(capsys: pytest.CaptureFixture[str]) -> None:
+    """An example's model is a file beside its hubs.toml: it runs locally, but a release (the wheel and hubs.toml)
+    would not carry it to the Pi, so `hubctl deploy` says so before it touches anything."""
+    assert hubctl(["deploy", "robot", "--dry-run", "--config", str(example("machine_tending"))]) == 1
+    err = capsys.readouterr().err
+    assert "station.model is the file" in err and "model.py" in err and "nothing on the target was changed" in err

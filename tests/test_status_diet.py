@@ -14,7 +14,9 @@ from collections.abc import Awaitable, Callable
 
 import msgspec
 
-from common.ctl import (
+from common.bus.memory_bus import MemoryBus
+from common.model import OperationState
+from common.wire.ctl import (
     HubAlive,
     HubGone,
     OperationInfo,
@@ -23,9 +25,7 @@ from common.ctl import (
     StatusMessage,
     done_mask,
 )
-from common.membus import MemoryBus
-from common.model import OperationState
-from common.statusview import StatusFollower, StatusView, fetch_plan
+from controller.console.statusview import StatusFollower, StatusView, fetch_plan
 from controller.service import STATUS_PERIOD_S
 from controller.statusfeed import StatusDiet
 from tests.test_memory_station import REFERENCE, MemoryStation, station_at  # noqa: F401  (fixture)

@@ -18,9 +18,14 @@ import pytest
 from matplotlib.image import imread
 from textual.widgets import Static
 
-from common.ctl import HubGone
-from common.recording.reader import Run, open_run
-from common.recording.schema import (
+from common.stations import load_model
+from common.wire.ctl import HubGone
+from controller.console.app import ConsoleApp
+from controller.console.gantt import NAME_WIDTH, gantt_lines
+from controller.console.station import StationInfo
+from controller.control import VIRTUAL_BUDGET
+from controller.recording.reader import Run, open_run
+from controller.recording.schema import (
     CommandRecord,
     OperationRecord,
     PlanRequestRecord,
@@ -29,14 +34,9 @@ from common.recording.schema import (
     StateRecord,
     WatchdogRecord,
 )
-from common.recording.writer import RECORDING_DIR_ENV, RecordingWriter
-from common.stations import load_model
-from common.timeline.model import Timeline, build_timeline
-from common.timeline.render import DPI, WIDTH_IN, Drawn, render
-from controller.console.app import ConsoleApp
-from controller.console.gantt import NAME_WIDTH, gantt_lines
-from controller.console.station import StationInfo
-from controller.control import VIRTUAL_BUDGET
+from controller.recording.writer import RECORDING_DIR_ENV, RecordingWriter
+from controller.timeline.model import Timeline, build_timeline
+from controller.timeline.render import DPI, WIDTH_IN, Drawn, render
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import RunSummary, run_in_process
 from deploy.local.recordings import in_process_recording

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from deploy_support import hubctl, station_toml
 
-from common.config import parse_config
+from common.config.hubs_toml import parse_config
 from deploy.remote.layout import Layout
 from deploy.remote.units import (
     BACKOFF_SYSTEMD,

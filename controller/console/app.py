@@ -36,10 +36,10 @@ from textual.css.query import NoMatches
 from textual.widgets import Footer, Header, Input, RichLog, Static
 from textual.worker import Worker, WorkerState
 
-from common.ctl import ConsoleReply, ConsoleRequest, StatusMessage
 from common.model import Model, OperationState
-from common.recording.writer import recording_dir
-from common.timeline.model import Timeline
+from common.wire.ctl import ConsoleReply, ConsoleRequest, StatusMessage
+from controller.recording.writer import recording_dir
+from controller.timeline.model import Timeline
 
 from .gantt import current_timeline, gantt_lines
 from .link import ConsoleLink, Feed
@@ -406,9 +406,9 @@ def run_console(config: str, connect: Sequence[str] = (), listen: Sequence[str] 
                 operator: str | None = None, certs: str | None = None) -> int:
     """`operator`: whose certificate the console presents in tls mode (default: the first of
     [security] operators); `certs`: the certificate directory."""
-    from common.config import NetworkConfig, load_station
-    from common.security import operator_identity
-    from common.station_net import station_zenoh_config
+    from common.bus.station_net import station_zenoh_config
+    from common.config.hubs_toml import NetworkConfig, load_station
+    from common.config.security import operator_identity
 
     station, model = load_station(config)
     info = StationInfo.from_station(station, model)

@@ -1,4 +1,4 @@
-"""The current run's timeline as a text Gantt chart: the same `Timeline` (common/timeline/model.py) that
+"""The current run's timeline as a text Gantt chart: the same `Timeline` (controller/timeline/model.py) that
 `hubctl timeline` draws, a row of character cells per lane.
 
 Each cell is `end / width` seconds of the run. An ability's span is `█` (blue done, orange aborted,
@@ -15,8 +15,8 @@ from pathlib import Path
 from rich.text import Text
 
 from common.model import Model
-from common.recording.reader import list_runs, open_run
-from common.timeline.model import Span, Timeline, build_timeline
+from controller.recording.reader import list_runs, open_run
+from controller.timeline.model import Span, Timeline, build_timeline
 
 NAME_WIDTH = 18
 PLANS_SHOWN = 6

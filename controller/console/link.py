@@ -1,7 +1,7 @@
 """The console's side of the bus: what the controller and the hubs publish, and the console's requests.
 
 `ConsoleLink.run()` keeps the newest status (the controller's deltas on `{station}/ctl/status`
-merged into a full picture, common/statusview.py; on connecting it asks for the whole picture),
+merged into a full picture, controller/console/statusview.py; on connecting it asks for the whole picture),
 the details of the plan under way (`{station}/ctl/plan/{id}`, asked when the plan or its done steps
 change), `{station}/ctl/state` and the self-test report of each hub (those subscriptions coalesce:
 a console that draws slower than the controller publishes only ever sees the newest), and counts
@@ -25,14 +25,14 @@ from typing import Protocol
 
 import msgspec
 
-from common.bus import Bus, BusError, Sample, Subscription
-from common.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
-from common.keys import station_keys
-from common.messages import Message, MessageError, decode, encode
-from common.selftest import SelftestMessage
-from common.statusview import StatusFollower, fetch_plan
-from common.zenoh_config import ZenohConfig, zenoh_config
-from common.zenohbus import ZenohBus
+from common.bus.protocol import Bus, BusError, Sample, Subscription
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import ZenohConfig, zenoh_config
+from common.wire.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
+from common.wire.keys import station_keys
+from common.wire.messages import Message, MessageError, decode, encode
+from common.wire.selftest_report import SelftestMessage
+from controller.console.statusview import StatusFollower, fetch_plan
 
 log = logging.getLogger("statehub.console")
 
@@ -67,7 +67,7 @@ def origin() -> str:
 class ConsoleLink:
     def __init__(self, station: str, connect: Sequence[str], *, listen: Sequence[str] = ("tcp/0.0.0.0:0",),
                  lease_ms: int = 2000, zconfig: ZenohConfig | None = None) -> None:
-        """`zconfig`: the session's config when the station is secured (common/station_net.py)."""
+        """`zconfig`: the session's config when the station is secured (common/bus/station_net.py)."""
         self.keys = station_keys(station)
         self.connect = list(connect)
         self.config = zconfig or zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from common.config import StationConfig
+from common.config.hubs_toml import StationConfig
 from common.model import Kind, Model
 
 

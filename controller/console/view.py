@@ -13,7 +13,9 @@ from dataclasses import dataclass
 
 from rich.text import Text
 
-from common.ctl import (
+from common.model import Kind, OperationState, ParseError, Value, parse_action
+from common.model.predicates import Ref, format_value
+from common.wire.ctl import (
     ControllerChanged,
     Event,
     ForbiddenStateCleared,
@@ -27,9 +29,7 @@ from common.ctl import (
     StatusMessage,
     Unhealthy,
 )
-from common.model import Kind, OperationState, ParseError, Value, parse_action
-from common.model.predicates import Ref, format_value
-from common.selftest import SelftestMessage
+from common.wire.selftest_report import SelftestMessage
 
 from .station import StationInfo
 

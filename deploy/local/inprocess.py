@@ -10,11 +10,11 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from common.ctl import NoPlanFound, PlanFound
 from common.model import Model, OperationState
+from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget
-from controller.recorder import RunRecorder, Sink
+from controller.recording.hooks import RunRecorder, Sink
 from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
 
@@ -51,7 +51,7 @@ def run_in_process(
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
 ) -> RunSummary:
-    """`recording`: where the run is recorded (controller/recorder.py), closed when it ends."""
+    """`recording`: where the run is recorded (controller/recording/hooks.py), closed when it ends."""
     say = report or (lambda _line: None)
     # The model tables are built before the first request, as the controller's planner process does.
     stack = build_controller_stack(model, prepare=True)

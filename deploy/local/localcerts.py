@@ -14,12 +14,12 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from common.config import StationConfig
+from common.bus.station_net import station_zenoh_config
+from common.bus.zenoh_config import ZenohConfig, loopback_peer
+from common.config.hubs_toml import StationConfig
+from common.config.security import identity_of, operator_identity
 from common.model import Model
-from common.process import network
-from common.security import identity_of, operator_identity
-from common.station_net import station_zenoh_config
-from common.zenoh_config import ZenohConfig, loopback_peer
+from common.plumbing.lifecycle import network
 from deploy.certs import init_ca, issue_for_station
 
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from common.config import RecordingConfig, load_config
+from common.config.hubs_toml import RecordingConfig, load_config
 from common.model import Model
-from common.recording.reader import list_runs
-from common.recording.schema import RunMeta
-from common.recording.writer import RecordingWriter, recording_dir
 from controller.planner import Budget
-from controller.recorder import open_recording
+from controller.recording.hooks import open_recording
+from controller.recording.reader import list_runs
+from controller.recording.schema import RunMeta
+from controller.recording.writer import RecordingWriter, recording_dir
 
 
 def recording_settings(config_path: str | Path | None) -> RecordingConfig:

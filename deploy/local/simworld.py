@@ -46,13 +46,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.bus import Bus
-from common.config import DeviceConfig, StationConfig, load_station
-from common.keys import Keys
-from common.messages import Codec
+from common.bus.protocol import Bus
+from common.bus.zenoh_bus import ZenohBus
+from common.config.hubs_toml import DeviceConfig, StationConfig, load_station
 from common.model import Model
-from common.tasks import cancel_and_wait
-from common.zenohbus import ZenohBus
+from common.plumbing.tasks import cancel_and_wait
+from common.wire.keys import Keys
+from common.wire.messages import Codec
 from hubs.factory import effective_mode
 from hubs.protocols.coupler import TOOLS
 from hubs.protocols.ur import COMMAND_PORT

@@ -17,15 +17,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from common.config import StationConfig, load_station
-from common.ctl import PlanDetails, StatusMessage
-from common.messages import MessageError
+from common.bus.station_net import security_banner
+from common.bus.zenoh_bus import ZenohBus
+from common.config.hubs_toml import StationConfig, load_station
+from common.config.security import operator_identity
 from common.model import Model, OperationState
-from common.process import free_port
-from common.security import operator_identity
-from common.station_net import security_banner
-from common.statusview import StatusFollower, fetch_plan
-from common.zenohbus import ZenohBus
+from common.plumbing.lifecycle import free_port
+from common.wire.ctl import PlanDetails, StatusMessage
+from common.wire.messages import MessageError
+from controller.console.statusview import StatusFollower, fetch_plan
 from deploy.runs.cli import timeline_after_run
 
 from .localcerts import local_certs, watcher_zenoh_config

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from common.config import ConfigError, StationConfig, load_config, load_station
+from common.config.hubs_toml import ConfigError, StationConfig, load_config, load_station
 from common.model import Model, ModelError
 from common.stations import ModelLoadError, load_model
 
@@ -86,7 +86,7 @@ def select_resources(config: StationConfig, model: Model, hub: str, wanted: list
 
 def open_bus(target: Target) -> tuple[BusThread, str]:
     """Listen where the controller would; if that address is taken, connect to it instead."""
-    from common.zenoh_config import zenoh_config
+    from common.bus.zenoh_config import zenoh_config
 
     from .link import BusThread, LinkError
 

@@ -23,14 +23,14 @@ from collections.abc import Coroutine, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from common.bus import Bus, Subscription, Token
-from common.ctl import StatusMessage
-from common.holder import declare_holder
-from common.keys import Keys, station_keys
-from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
+from common.bus.protocol import Bus, Subscription, Token
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
 from common.model import Kind, Model, Value
-from common.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
-from common.zenohbus import ZenohBus
+from common.wire.ctl import StatusMessage
+from common.wire.holder_token import declare_holder
+from common.wire.keys import Keys, station_keys
+from common.wire.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
 
 log = logging.getLogger("statehub.modeltest")
 T = TypeVar("T")

@@ -19,11 +19,11 @@ from hypothesis import HealthCheck, Phase, Verbosity, given, seed, settings
 from hypothesis import strategies as st
 from hypothesis.errors import Flaky
 
-from common.config import StationConfig, load_config, load_station
+from common.bus.station_net import tls_settings
+from common.bus.zenoh_config import TlsSettings
+from common.config.hubs_toml import StationConfig, load_config, load_station
+from common.config.security import identity_of, tls_endpoints
 from common.model import Model
-from common.security import identity_of, tls_endpoints
-from common.station_net import tls_settings
-from common.zenoh_config import TlsSettings
 
 from .link import BusThread, LinkError, ResourceLink, shared_bus
 from .oracle import ResourceOracle

@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 from hypothesis import strategies as st
 
-from common.messages import HubStatus
 from common.model import Value
 from common.model.predicates import format_value
+from common.wire.messages import HubStatus
 
 from .checker import HUB_STATUS, MIRROR, START_STATE, Checker, Finding, Observation, Violation, violation
 from .link import ResourceLink, StateSample

@@ -14,7 +14,7 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from common.config import ConfigError, StationConfig
+from common.config.hubs_toml import ConfigError, StationConfig
 
 if TYPE_CHECKING:
     from .deploy import Connection, Waiting
@@ -50,7 +50,7 @@ def summary(config: StationConfig, resources: int, operations: int) -> list[str]
 
 
 def cmd_config_check(args: argparse.Namespace) -> int:
-    from common.config import load_station
+    from common.config.hubs_toml import load_station
     from common.model import ModelError
     from hubs.factory import check_devices
 
@@ -71,7 +71,7 @@ def cmd_config_check(args: argparse.Namespace) -> int:
 # --- units ----------------------------------------------------------------------------------------
 
 def cmd_units(args: argparse.Namespace) -> int:
-    from common.config import load_config
+    from common.config.hubs_toml import load_config
 
     from .layout import Layout
     from .units import BACKOFF_SYSTEMD, DEFAULT_SYSTEMD, local_systemd_version, station_units, write_units

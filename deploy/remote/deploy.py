@@ -35,10 +35,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from common.config import StationConfig, load_station
-from common.security import cert_dir, identity_of, tls_files
-from common.selftest import format_report
-from common.zenohbus import ZenohBus
+from common.bus.zenoh_bus import ZenohBus
+from common.config.hubs_toml import StationConfig, load_station
+from common.config.security import cert_dir, identity_of, tls_files
+from common.stations import is_file_reference
+from common.wire.selftest_report import format_report
 
 from . import scripts
 from .hostkeys import station_known_hosts
@@ -138,6 +139,11 @@ def hub_cert_files(config: StationConfig, hub: str) -> list[tuple[str, Path]]:
 def check_hub(config: StationConfig, hub: str) -> None:
     if hub not in config.hubs:
         raise UnknownHub(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
+    if is_file_reference(config.station.model):
+        # The release is the wheel and hubs.toml: a model file beside hubs.toml would not reach the Pi.
+        raise StationFileError(f"{config.path}: station.model is the file {config.station.model.rpartition(':')[0]}: "
+                               f"a deployed hub imports its model from an installed package; make the station a "
+                               f"package (`hubctl new-station`, docs/new-station.md) and name its module:function")
 
 
 def check_probe(probe: scripts.Probe, where: str, python: str, *, needs_ensurepip: bool, sudo: bool) -> None:

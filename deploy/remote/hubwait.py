@@ -18,12 +18,12 @@ import asyncio
 import time
 from dataclasses import dataclass
 
-from common.bus import Bus, LivelinessEvent, Sample, Subscription
-from common.config import StationConfig
-from common.keys import station_keys
-from common.messages import MessageError, decode
-from common.selftest import SelftestMessage
-from common.zenoh_config import ZenohConfig, zenoh_config
+from common.bus.protocol import Bus, LivelinessEvent, Sample, Subscription
+from common.bus.zenoh_config import ZenohConfig, zenoh_config
+from common.config.hubs_toml import StationConfig
+from common.wire.keys import station_keys
+from common.wire.messages import MessageError, decode
+from common.wire.selftest_report import SelftestMessage
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:0"
 _WILDCARD_HOSTS = ("0.0.0.0", "[::]", "::")
@@ -55,8 +55,8 @@ def watch_config(config: StationConfig, hub: str, *, listen: str = DEFAULT_LISTE
     net = config.network_for(hub)
     endpoints = connect or watch_endpoints(config, hub)
     if config.security.mode == "tls":
-        from common.security import operator_identity
-        from common.station_net import station_zenoh_config
+        from common.bus.station_net import station_zenoh_config
+        from common.config.security import operator_identity
 
         return station_zenoh_config(config, config.load_model(), operator_identity(config), net,
                                     listen=[listen] if listen and net.mode == "peer" else [], connect=endpoints)

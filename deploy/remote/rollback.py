@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from common.config import load_config
+from common.config.hubs_toml import load_config
 
 from . import scripts
 from .deploy import (

@@ -32,7 +32,7 @@ Choices, each for a reason:
   `DevicePolicy=closed` (it would tie the unit to kernel driver names; the groups
   already scope device access).
 * `Type=notify` with `WatchdogSec=`: the process says READY=1 once it serves (a hub in its safe
-  state, the controller with its mirrors taken) and WATCHDOG=1 from its loop (common/sdnotify.py),
+  state, the controller with its mirrors taken) and WATCHDOG=1 from its loop (common/plumbing/sdnotify.py),
   so systemd restarts a loop that hangs, not only a process that exits. `MemoryMax=` and
   `TasksMax=` bound what a runaway (a flood of payloads, a leak, a thread per request) can take
   from the ECU; the controller's bounds are wider for its planner process.
@@ -49,7 +49,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.config import HubConfig, StationConfig
+from common.config.hubs_toml import HubConfig, StationConfig
 
 from .layout import CONTROLLER_UNIT, Layout, hub_unit_name
 

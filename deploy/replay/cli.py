@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from common.recording.reader import RecordingError, open_run
+from controller.recording.reader import RecordingError, open_run
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

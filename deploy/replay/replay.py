@@ -17,7 +17,7 @@ states, rebuilt from their recorded steps on the replayed start state; what the 
 them (adopted or dropped, shorter plan taken or not, every command and transition that followed) is
 checked. The watchdog's verdicts are inputs too: they follow from when each 50 Hz state arrived, and
 the recording keeps what changed, not every arrival. So are the values loaded (persisted ones at
-start, mirrors) and the resources held until their mirror comes (controller/hold.py).
+start, mirrors) and the resources held until their mirror comes (controller/command_hold.py).
 """
 
 from __future__ import annotations
@@ -29,8 +29,13 @@ from typing import Any
 import msgspec
 
 from common.model import Model
-from common.recording.reader import Record, Run
-from common.recording.schema import (
+from common.stations import load_model
+from controller.control import ControlCore, PlanRequest
+from controller.planner import Budget, NoPlan, Plan, PlanStats
+from controller.planner.validate import plan_from_moves
+from controller.recording.hooks import RunRecorder
+from controller.recording.reader import Record, Run
+from controller.recording.schema import (
     CommandRecord,
     HoldRecord,
     OperationRecord,
@@ -43,11 +48,6 @@ from common.recording.schema import (
     WatchdogRecord,
     station_model_hash,
 )
-from common.stations import load_model
-from controller.control import ControlCore, PlanRequest
-from controller.planner import Budget, NoPlan, Plan, PlanStats
-from controller.planner.validate import plan_from_moves
-from controller.recorder import RunRecorder
 from controller.requests import Requests
 from controller.stack import build_controller_stack
 

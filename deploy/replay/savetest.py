@@ -13,9 +13,9 @@ from pathlib import Path
 
 import msgspec
 
-from common.recording.reader import Run
-from common.recording.schema import DDL, SUFFIX, RecordKind, StateRecord
-from common.recording.store import write_meta
+from controller.recording.reader import Run
+from controller.recording.schema import DDL, SUFFIX, RecordKind, StateRecord
+from controller.recording.store import write_meta
 
 from .replay import CORE_EVENTS
 

@@ -7,9 +7,9 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from common.config import ConfigError
-from common.recording.reader import RecordingError, list_runs, open_run
-from common.recording.writer import recording_dir
+from common.config.hubs_toml import ConfigError
+from controller.recording.reader import RecordingError, list_runs, open_run
+from controller.recording.writer import recording_dir
 
 PLANS_PRINTED = 20
 
@@ -23,8 +23,8 @@ def default_directory(config: str | None) -> Path:
 
 def draw_timeline(recording: str | Path, out: str | Path | None = None) -> tuple[Path, list[str]]:
     """Draw the run recorded in `recording` into `out` (default: next to it, .html); the file and a summary."""
-    from common.timeline.model import build_timeline
-    from common.timeline.render import plan_lines, render
+    from controller.timeline.model import build_timeline
+    from controller.timeline.render import plan_lines, render
 
     recording = Path(recording)
     target = Path(out) if out is not None else recording.with_suffix(".html")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from common.recording.reader import RunInfo, list_runs
+from controller.recording.reader import RunInfo, list_runs
 
 COLUMNS = ("started", "run", "mode", "outcome", "operations", "plans", "replans", "faults", "duration", "size", "file")
 OUTCOMES = {"running": "running/killed"}  # a run whose controller was killed never wrote its end

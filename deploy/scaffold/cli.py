@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from common.config import ConfigError
+from common.config.hubs_toml import ConfigError
 
 from .files import ScaffoldError
 

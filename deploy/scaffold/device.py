@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.config import ConfigError, StationConfig, check_against_model, load_config
+from common.config.hubs_toml import ConfigError, StationConfig, check_against_model, load_config
 from common.model import Model, Resource, Variable
 
 from .files import Changes, ScaffoldError, add_to_table, check_name, insert_at_marker, render, toml_key

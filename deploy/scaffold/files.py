@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from string import Template
 
-from common.keylines import KeyLines
+from common.config.keylines import KeyLines
 
 IDENTIFIER = re.compile(r"^[a-z][a-z0-9_]*$")
 

@@ -29,8 +29,8 @@ from typing import NoReturn
 
 import pytest
 
-from common.config import load_config
-from common.process import free_port
+from common.config.hubs_toml import load_config
+from common.plumbing.lifecycle import free_port
 
 from ..modeltest.pytest_plugin import ModelTest
 from ..modeltest.runner import Target

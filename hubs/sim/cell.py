@@ -47,9 +47,9 @@ from dataclasses import dataclass, field
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from common.bus import Bus
-from common.keys import Keys
-from common.messages import Codec, HubStatus, MessageError
+from common.bus.protocol import Bus
+from common.wire.keys import Keys
+from common.wire.messages import Codec, HubStatus, MessageError
 from hubs.protocols.coupler import DEVICE_ID, TOOLS
 from hubs.sim.toolchanger_modbus import HR_FLANGE, HR_HAND
 

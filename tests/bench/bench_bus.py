@@ -10,7 +10,7 @@ and echoes. Measured for small messages (64 bytes):
   peer reports when it has them all; messages per second.
 
 "raw" is zenoh-python as its examples use it (no asyncio, the echo publishes from
-inside the callback, the pinger blocks on a FIFO channel); "bus" is `common.bus.Bus`
+inside the callback, the pinger blocks on a FIFO channel); "bus" is `common.bus.protocol.Bus`
 on both sides. "express" sends each message at once; "batched" lets zenoh batch.
 """
 
@@ -31,9 +31,9 @@ sys.path.insert(0, ROOT)
 
 import zenoh  # noqa: E402
 
-from common.process import free_port  # noqa: E402
-from common.zenoh_config import zenoh_config  # noqa: E402
-from common.zenohbus import ZenohBus  # noqa: E402
+from common.bus.zenoh_bus import ZenohBus  # noqa: E402
+from common.bus.zenoh_config import zenoh_config  # noqa: E402
+from common.plumbing.lifecycle import free_port  # noqa: E402
 
 PAYLOAD = bytes(64)
 BLOCK = zenoh.CongestionControl.BLOCK

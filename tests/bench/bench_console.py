@@ -21,7 +21,8 @@ import msgspec
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.ctl import (
+from common.model import Kind, OperationState
+from common.wire.ctl import (
     ConsoleReply,
     ConsoleRequest,
     OperationInfo,
@@ -33,8 +34,7 @@ from common.ctl import (
     StatusMessage,
     done_mask,
 )
-from common.model import Kind, OperationState
-from common.selftest import DeviceReport, SelftestMessage
+from common.wire.selftest_report import DeviceReport, SelftestMessage
 from controller.console.app import ConsoleApp
 from controller.console.station import StationInfo
 

@@ -34,8 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_seeds import seeds_of  # noqa: E402
 
-from common.recording.schema import PlanRecord  # noqa: E402
-from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
+from controller.recording.schema import PlanRecord  # noqa: E402
+from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 
 RUN_LIMIT_S = 300.0
 SUMMARY = re.compile(r"^(finished|stopped|stuck).*$", re.MULTILINE)

@@ -38,16 +38,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from common.model import Model, OperationState, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
-from common.stations import engine_assembly, load_model, synthetic
+from common.stations import engine_assembly, load_model
 from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
 from controller.planner.search import astar
 from controller.planner.steps import stable_goal
 from controller.stack import build_controller_stack
 from deploy.local.statefile import load_state
+from tests.stations import synthetic
 
 HERE = Path(__file__).resolve().parent
-OTHER_STATIONS = ("common.stations.machine_tending:build_model", "common.stations.shared_workspace:build_model")
+OTHER_STATIONS = tuple(f"{HERE.parent.parent / 'examples' / name / 'model.py'}:build_model"
+                       for name in ("machine_tending", "shared_workspace"))
 
 
 def ms(seconds: float) -> str:

@@ -6,7 +6,7 @@ The controller service of the capacity station (N nutrunners) is built but not c
 encoded hub states are handed to its ingestion as its subscription hands them over (50 states per
 batch: 500 resources at 50 Hz arrive in 2 ms batches), and it ticks after each batch, as on a change.
 The CPU time of the controller's process per state ingested is its ingest capacity's inverse. The
-recording's writer is a process of its own (common/recording/writer.py): its CPU time, until the last
+recording's writer is a process of its own (controller/recording/writer.py): its CPU time, until the last
 record is on disk, is not the controller's and is counted apart, as is the sum of both. Two loads:
 `steady` (the values never change: a state is recorded only when its hub's status or mirror changes)
 and `changing` (every state carries a new value: every one is recorded, the worst case). Recording on
@@ -39,12 +39,12 @@ sys.path.insert(0, str(HERE))
 
 from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
 
-from common.bus import Sample  # noqa: E402
-from common.config import load_station  # noqa: E402
-from common.membus import MemoryBus, MemoryHub  # noqa: E402
-from common.messages import Codec, HubStatus  # noqa: E402
-from common.recording.schema import RunMeta  # noqa: E402
-from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
+from common.bus.memory_bus import MemoryBus, MemoryHub  # noqa: E402
+from common.bus.protocol import Sample  # noqa: E402
+from common.config.hubs_toml import load_station  # noqa: E402
+from common.wire.messages import Codec, HubStatus  # noqa: E402
+from controller.recording.schema import RunMeta  # noqa: E402
+from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
 
 BATCH = 50

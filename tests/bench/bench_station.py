@@ -53,12 +53,12 @@ sys.path.insert(0, str(HERE))
 
 from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
-from common.holder import declare_holder  # noqa: E402
-from common.keys import station_keys  # noqa: E402
-from common.process import free_port  # noqa: E402
-from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
-from common.zenoh_config import zenoh_config  # noqa: E402
-from common.zenohbus import ZenohBus  # noqa: E402
+from common.bus.zenoh_bus import ZenohBus  # noqa: E402
+from common.bus.zenoh_config import zenoh_config  # noqa: E402
+from common.plumbing.lifecycle import free_port  # noqa: E402
+from common.wire.holder_token import declare_holder  # noqa: E402
+from common.wire.keys import station_keys  # noqa: E402
+from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 
 TICK_MEDIAN_LIMIT_MS = 5.0
 AGE_LIMIT_MS = 3 * 1000.0 / HUB_RATE_HZ
@@ -99,7 +99,7 @@ class Step:
     age_max_ms: float = 0.0
     unhealthy: int = 0
     controller_cpu: float = 0.0  # share of one core
-    writer_cpu: float = 0.0  # of its recording's writer process (common/recording/writer.py), apart
+    writer_cpu: float = 0.0  # of its recording's writer process (controller/recording/writer.py), apart
     problem: str = ""
     notes: list[str] = field(default_factory=list)
 
@@ -143,8 +143,8 @@ def rss_mb(pid: int) -> float:
 
 async def capacity_step(directory: Path, resources: int, warmup: float, window: float, *,
                         record: bool = True) -> Step:
-    from common.ctl import StatusMessage
-    from common.messages import MessageError, decode
+    from common.wire.ctl import StatusMessage
+    from common.wire.messages import MessageError, decode
 
     step = Step(resources)
     station = f"bench_{os.getpid()}_{uuid.uuid4().hex[:6]}"
@@ -267,8 +267,8 @@ class HubFigures:
 
 
 async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> HubFigures:
-    from common.config import load_station
-    from common.messages import Codec
+    from common.config.hubs_toml import load_station
+    from common.wire.messages import Codec
 
     text = FAULT_STATION.read_text().replace('name = "fault_station"', f'name = "bench_hub_{os.getpid()}"', 1)
     config_path = directory / "hub.toml"

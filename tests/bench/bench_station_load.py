@@ -22,10 +22,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.keys import station_keys
+from common.bus.zenoh_config import zenoh_config
 from common.model import Model
 from common.resources import nutrunner
-from common.zenoh_config import zenoh_config
+from common.wire.keys import station_keys
 
 RESOURCES_ENV = "STATEHUB_BENCH_RESOURCES"
 HUB_RATE_HZ = 50.0
@@ -67,7 +67,7 @@ def generator(endpoint: str, station: str, hub: str, resources: int, served: ran
     import msgspec
     import zenoh
 
-    from common.messages import SCHEMA, Codec, HubStatus, MessageError
+    from common.wire.messages import SCHEMA, Codec, HubStatus, MessageError
 
     os.environ[RESOURCES_ENV] = str(resources)
     model = build_model()

@@ -26,17 +26,17 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from common.config import load_station  # noqa: E402
-from common.ctl import StatusMessage  # noqa: E402
-from common.messages import MessageError, decode  # noqa: E402
-from common.zenoh_config import zenoh_config  # noqa: E402
-from common.zenohbus import ZenohBus  # noqa: E402
+from common.bus.zenoh_bus import ZenohBus  # noqa: E402
+from common.bus.zenoh_config import zenoh_config  # noqa: E402
+from common.config.hubs_toml import load_station  # noqa: E402
+from common.wire.ctl import StatusMessage  # noqa: E402
+from common.wire.messages import MessageError, decode  # noqa: E402
 
 PORT_LINE = re.compile(r"on 127\.0\.0\.1:(\d+)")
 
 
 async def measure(station: str, endpoint: str, time_limit: float, pull_plans: bool) -> None:
-    from common.keys import station_keys
+    from common.wire.keys import station_keys
 
     keys = station_keys(station)
     async with ZenohBus(zenoh_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])) as bus:

@@ -25,13 +25,13 @@ from bench_planner import ms, reference_cases, table
 
 from common.model import Predicate, all_of
 from common.model.compiled import CompiledModel, State
-from common.stations import synthetic
 from controller.planner import Plan, Planner
 from controller.planner.plans import PlanStats
 from controller.planner.steps import RaceCheck, stable_goal
 from controller.planner.symbolic import SymbolicPlanner
 from controller.planner.symbolic_encoding import BACKEND
 from controller.planner.validate import check_plan, plan_from_moves
+from tests.stations import synthetic
 
 
 def case(label: str, compiled: CompiledModel, forbidden: Predicate | None, start: State, goal: Predicate,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from common.config import ConfigError, load_config
+from common.config.hubs_toml import ConfigError, load_config
 from deploy.local.simworld import SimWorld
 from hubs.drivers.registry import ENTRY_POINT_GROUP, driver_types, find_driver
 from hubs.factory import check_devices, effective_mode, make_driver

@@ -10,8 +10,8 @@ from __future__ import annotations
 from itertools import pairwise
 from typing import Any
 
-from common.ctl import StatusMessage
 from common.model import OperationState
+from common.wire.ctl import StatusMessage
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES, BOLTS, bolt
 from tests.fault_station.watcher import Seen, rising_edges, value_published_before

@@ -10,8 +10,8 @@ import msgspec
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from common.ctl import StateSnapshot
-from common.messages import SCHEMA, Codec, encode
+from common.wire.ctl import StateSnapshot
+from common.wire.messages import SCHEMA, Codec, encode
 from hubs.selftest import report_message
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES

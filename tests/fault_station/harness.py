@@ -36,8 +36,8 @@ from typing import Any, TypeVar
 
 import msgspec
 
-from common.config import load_station
-from common.process import free_port
+from common.config.hubs_toml import load_station
+from common.plumbing.lifecycle import free_port
 from tests.fault_station.watcher import Watcher
 
 ROOT = Path(__file__).resolve().parents[2]

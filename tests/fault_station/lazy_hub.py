@@ -22,11 +22,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.config import load_station
-from common.messages import HubStatus, MessageError
-from common.process import network, setup_logging, stop_on_signals
-from common.zenoh_config import zenoh_config_for
-from common.zenohbus import ZenohBus
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config_for
+from common.config.hubs_toml import load_station
+from common.plumbing.lifecycle import network, setup_logging, stop_on_signals
+from common.wire.messages import HubStatus, MessageError
 from hubs.factory import build_drivers
 from hubs.runtime import HubRuntime, ResourceSlot
 

@@ -1,7 +1,7 @@
 """The fault station's watcher: a `Bus` in a background thread that records the station's traffic.
 
 With the receive time it records every `{station}/ctl/status` (StatusMessage, the controller's deltas
-merged into full statuses by common/statusview.py) and
+merged into full statuses by controller/console/statusview.py) and
 `{station}/ctl/state` (StateSnapshot), every state of every resource (`{station}/res/*/state`,
 decoded with the resource's Codec) and every command (`{station}/res/*/cmd`), and counts
 what it could not decode (the garbage a test publishes itself). Nothing is coalesced: a
@@ -19,14 +19,14 @@ from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from common.bus import Sample
-from common.config import StationConfig
-from common.ctl import StateSnapshot, StatusMessage
-from common.messages import Codec, MessageError, decode
+from common.bus.protocol import Sample
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import StationConfig
 from common.model import Model
-from common.statusview import StatusFollower
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.wire.ctl import StateSnapshot, StatusMessage
+from common.wire.messages import Codec, MessageError, decode
+from controller.console.statusview import StatusFollower
 
 T = TypeVar("T")
 

@@ -23,14 +23,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.config import load_station
-from common.holder import declare_holder
-from common.messages import Codec, MessageError
+from common.bus.zenoh_bus import ZenohBus
+from common.bus.zenoh_config import zenoh_config
+from common.config.hubs_toml import load_station
 from common.model import Value
-from common.process import free_port
-from common.tasks import cancel_and_wait
-from common.zenoh_config import zenoh_config
-from common.zenohbus import ZenohBus
+from common.plumbing.lifecycle import free_port
+from common.plumbing.tasks import cancel_and_wait
+from common.wire.holder_token import declare_holder
+from common.wire.messages import Codec, MessageError
 from deploy.local.simworld import TASKS_END_S, SimWorld
 from hubs.protocols.ur import COMMAND_PORT
 from hubs.sim.cell import RobotLink
