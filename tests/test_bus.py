@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from common.bus import Bus, BusClosed, LivelinessEvent, Request, Sample
+from common.bus import Bus, BusClosed, LivelinessEvent, Reply, Request, Sample
 from common.inbox import Inbox
 from common.keys import KeyExprError, Keys
 from common.process import free_port
@@ -341,7 +341,7 @@ async def test_get_from_a_queryable_in_another_process(bus: tuple[Bus, Peers], p
     b, peers = bus
     await peers.start("queryable")
     deadline = time.monotonic() + STARTUP
-    replies = []
+    replies: list[Reply] = []
     while not replies and time.monotonic() < deadline:
         replies = await b.get(f"{prefix}/q/abc?x=1", payload=b"hi", timeout=1.0)
     assert [(r.key, r.payload, r.ok) for r in replies] == [(f"{prefix}/q/abc", f"{prefix}/q/abc|x=1|hi".encode(), True)]

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from test_hub_runtime import Hub, RecordingDriver
 
 from common.badpayload import BadPayloads
 from common.holder import Holder, declare_holder
@@ -28,6 +27,7 @@ from common.messages import Codec, HubStatus, OversizedPayload
 from common.model import Domain, Resource, command, measured
 from controller.holder import ControllerConflict, StationHold
 from controller.state import StateStore
+from tests.test_hub_runtime import Hub, RecordingDriver
 
 
 def nutrunner() -> RecordingDriver:

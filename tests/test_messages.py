@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from typing import Any
 
 import msgspec
 import pytest
@@ -23,7 +24,7 @@ from common.messages import (
     encode,
     model_hash,
 )
-from common.model import Domain, Resource, Variable, command, estimated, measured
+from common.model import Domain, Resource, Value, Variable, command, estimated, measured
 
 
 def nutrunner(name: str = "nr") -> Resource:
@@ -53,11 +54,11 @@ RESOURCES = [nutrunner(), robot(), odd()]
 CODECS = codecs_for(RESOURCES)
 
 
-def values_of(variables: tuple[Variable, ...]) -> st.SearchStrategy[dict[str, object]]:
+def values_of(variables: tuple[Variable, ...]) -> st.SearchStrategy[dict[str, Value]]:
     return st.fixed_dictionaries({v.name: st.sampled_from(v.domain.values) for v in variables})
 
 
-def measured_of(variables: tuple[Variable, ...]) -> st.SearchStrategy[dict[str, object]]:
+def measured_of(variables: tuple[Variable, ...]) -> st.SearchStrategy[dict[str, Value | None]]:
     return st.fixed_dictionaries({v.name: st.none() | st.sampled_from(v.domain.values) for v in variables})
 
 
@@ -65,8 +66,9 @@ seqs = st.integers(min_value=0, max_value=2**63 - 1)
 times = st.floats(allow_nan=False, allow_infinity=False)
 
 
-def a_command(codec: Codec, seq: int = 1, **overrides: object) -> msgspec.Struct:
-    values = {v.name: v.initial for v in codec.commands} | overrides
+def a_command(codec: Codec, seq: int = 1, **overrides: Value) -> Any:
+    # Any: the command struct is generated from the resource's model; its fields have no static type.
+    values: dict[str, Value] = {v.name: v.initial for v in codec.commands} | overrides
     return codec.command(values, seq=seq, controller="decs")
 
 

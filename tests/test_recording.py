@@ -176,7 +176,7 @@ def test_an_ingested_batch_is_one_row_read_back_as_one_state_record_per_resource
             ("ur", StateRecord(values={"ur.pos_m": "at_bolt1"}, status="ok")),
             ("nr", StateRecord(values={"nr.run_m": False}, status="ok", mirror_seq=3)),
             ("ur", StateRecord(status="lost", detail="cable"))]
-        assert [r.data.status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
+        assert [r.data_as(StateRecord).status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
         assert [r.kind for r in run.events(kinds=["tick"], key="ur")] == []
 
 

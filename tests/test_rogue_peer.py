@@ -22,7 +22,6 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from hub_process import ROOT, HubProcess
 
 from common.config import load_station
 from common.holder import declare_holder
@@ -34,6 +33,7 @@ from controller.holder import EXIT_CONFLICT
 from tests.fault_station.checks import controller_commands
 from tests.fault_station.harness import Station
 from tests.fault_station.watcher import Seen
+from tests.hub_process import ROOT, HubProcess
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from scaffold_support import generated_projects_removed, install, venv_lock
 
 from common.config import load_station
 from common.model import Model, Resource
 from deploy.cli import main as hubctl
 from deploy.scaffold.device import check_same_contract
 from deploy.scaffold.files import ScaffoldError
+from tests.scaffold_support import generated_projects_removed, install, venv_lock
 
 ROOT = Path(__file__).resolve().parent.parent
 

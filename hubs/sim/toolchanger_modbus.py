@@ -263,7 +263,9 @@ class ToolChangerServer:
         server = ModbusTcpServer(self._device(), address=(self.host, self.port))
         await server.serve_forever(background=True)
         self._server = server
-        self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        listener = server.transport
+        assert isinstance(listener, asyncio.Server)  # what pymodbus keeps as a TCP server's transport
+        self.port = listener.sockets[0].getsockname()[1]
         return self.port
 
     async def stop(self) -> None:

@@ -30,7 +30,7 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -258,7 +258,7 @@ def synthetic_cases(sizes: list[int]) -> list[Case]:
 
 # --- 2. goal sets asked during runs ----------------------------------------------------------------
 def bench_runs(runs: int) -> None:
-    from controller.planner.relaxed import RelaxedPlan
+    from controller.planner.relaxed import Estimate, RelaxedPlan
     from deploy.local.inprocess import run_in_process
 
     firsts: list[float] = []
@@ -266,16 +266,16 @@ def bench_runs(runs: int) -> None:
     first_minimal = shown_minimal = requests = evaluations = 0
     original, evaluate = Planner.plan_anytime, RelaxedPlan.evaluate
 
-    def counting(self: RelaxedPlan, state: State):  # type: ignore[no-untyped-def]
+    def counting(self: RelaxedPlan, state: State) -> Estimate:
         nonlocal evaluations
         evaluations += 1
         return evaluate(self, state)
 
     def recording(self: Planner, start: State, goals: Mapping[str, Predicate], disabled: frozenset[str] = frozenset(),
-                  budget: Budget | None = None):  # type: ignore[no-untyped-def]
+                  budget: Budget | None = None) -> Iterator[Plan | NoPlan]:
         nonlocal first_minimal, shown_minimal, requests
         began, evaluated = time.process_time(), evaluations
-        answers = []
+        answers: list[Plan | NoPlan] = []
         for answer in original(self, start, goals, disabled, budget):
             if not answers:
                 firsts.append(time.process_time() - began)

@@ -35,9 +35,6 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
-sys.path.insert(0, str(HERE))
-
-from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
 
 from common.bus import Sample  # noqa: E402
 from common.config import load_station  # noqa: E402
@@ -46,6 +43,7 @@ from common.messages import Codec, HubStatus  # noqa: E402
 from common.recording.schema import RunMeta  # noqa: E402
 from common.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
+from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
 
 BATCH = 50
 BLOCK = 100  # batches between attaching and detaching the recording (interleaved)

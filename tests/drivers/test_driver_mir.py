@@ -9,7 +9,6 @@ from typing import Any
 
 import httpx
 import pytest
-from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.mir_rest import MirRest
@@ -17,6 +16,7 @@ from hubs.drivers.reconnect import Backoff
 from hubs.factory import make_driver
 from hubs.sim import mir_rest as sim
 from hubs.sim.mir_rest import MirRobot, MirServer
+from tests.drivers.drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)

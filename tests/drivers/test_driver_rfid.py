@@ -7,13 +7,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from drvtest import Connect, eventually, read_until, simulator_process
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.reconnect import Backoff
 from hubs.drivers.rfid_serial import RfidSerial, parse_body
 from hubs.factory import make_driver
 from hubs.sim.rfid_serial import RfidReaderSim, frame
+from tests.drivers.drvtest import Connect, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)

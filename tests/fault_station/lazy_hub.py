@@ -52,7 +52,7 @@ class LazyHubRuntime(HubRuntime):
                 await slot.driver.write(values)
                 slot.mirror = command
                 log.info("lazy hub %s: applied command %d of %d to %s (seq %d)", self.hub, self.received,
-                         self.apply, slot.name, command.seq)  # type: ignore[attr-defined]
+                         self.apply, slot.name, command.seq)
             elif self.received == self.apply + 1:
                 log.info("lazy hub %s: from now on commands are received but not applied", self.hub)
             self._publish(slot)
