@@ -27,6 +27,7 @@ from common.messages import Codec, HubStatus, OversizedPayload
 from common.model import Domain, Resource, command, measured
 from controller.holder import ControllerConflict, StationHold
 from controller.state import StateStore
+from hubs.runtime import ResourceSlot
 from tests.test_hub_runtime import Hub, RecordingDriver
 
 
@@ -163,7 +164,8 @@ async def test_a_crash_of_the_hubs_loop_drives_every_output_safe() -> None:
     await hub.state_where("rsp", lambda s: s.mirror is not None and s.locked_m is True)
     await hub.state_where("nr", lambda s: s.run_m is True)
     before = tool.safe_states, changer.safe_states
-    hub.runtime._read_and_publish = _crash  # type: ignore[method-assign]  # a bug the loop does not expect
+    # method-assign: the instance's method replaced, a bug the loop does not expect.
+    hub.runtime._read_and_publish = _crash  # type: ignore[method-assign]
     assert hub.task is not None
     with pytest.raises(SystemError, match="the loop crashed"):
         await asyncio.wait_for(hub.task, 5)
@@ -172,7 +174,7 @@ async def test_a_crash_of_the_hubs_loop_drives_every_output_safe() -> None:
     await hub.bus.close()
 
 
-async def _crash(*_args: object) -> None:
+async def _crash(slot: ResourceSlot) -> None:
     raise SystemError("the loop crashed")
 
 

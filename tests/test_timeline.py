@@ -49,6 +49,7 @@ FAULT_MODEL = "tests.fault_station.model:build_model"
 def reference_run() -> Iterator[tuple[RunSummary, Path]]:
     model = load_model(REFERENCE_MODEL)
     recording = in_process_recording(model, REFERENCE_MODEL, None, seed=1, budget=VIRTUAL_BUDGET)
+    assert recording is not None, "the run's recording could not be opened"
     summary = run_in_process(model, seed=1, budget=VIRTUAL_BUDGET, recording=recording)
     assert summary.finished, summary.reason
     yield summary, recording.path

@@ -62,7 +62,8 @@ class RunInfo:
 
 
 # Any: each kind decodes to its own struct (DATA_TYPES), which the kind, not the type, tells apart.
-_DECODERS: dict[RecordKind, msgspec.msgpack.Decoder[Any]] = {kind: msgspec.msgpack.Decoder(data_type) for kind, data_type in DATA_TYPES.items()}
+_DECODERS: dict[RecordKind, msgspec.msgpack.Decoder[Any]] = {
+    kind: msgspec.msgpack.Decoder(data_type) for kind, data_type in DATA_TYPES.items()}
 
 
 def _connect(path: Path) -> sqlite3.Connection:

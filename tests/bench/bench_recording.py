@@ -236,7 +236,8 @@ def main() -> None:
     parser.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:  # a measurement of measure()'s, in a process of its own
-        print(json.dumps(one(*args.one, args.resources, args.states, args.dir)))
+        what, load = args.one
+        print(json.dumps(one(what, load, args.resources, args.states, args.dir)))
         return
     report(args.resources, args.seconds, args.rounds, 0.05)
 

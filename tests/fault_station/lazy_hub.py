@@ -48,7 +48,8 @@ class LazyHubRuntime(HubRuntime):
             slot.in_safe_state = False
             slot.status, slot.detail = HubStatus.OK, ""
             if self.received <= self.apply:
-                values = slot.codec.values(command)
+                # A command carries every command variable: none is unknown (None) as a measured one may be.
+                values = {name: v for name, v in slot.codec.values(command).items() if v is not None}
                 await slot.driver.write(values)
                 slot.mirror = command
                 log.info("lazy hub %s: applied command %d of %d to %s (seq %d)", self.hub, self.received,
