@@ -79,7 +79,7 @@ async def bus(prefix: str) -> AsyncIterator[tuple[Bus, Peers]]:
 
 
 async def next_event(watch: object, timeout: float) -> LivelinessEvent:
-    return await asyncio.wait_for(watch.get(), timeout)  # type: ignore[attr-defined]
+    return await asyncio.wait_for(watch.get(), timeout)  # type: ignore[attr-defined]  # a subscription or a liveliness watch
 
 
 # --- keys ----------------------------------------------------------------------------------

@@ -158,7 +158,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         # Force an estimate through the input, see it forced in the controller's state, then undo it.
         forced_at = time.monotonic()
         await pilot.press("f")
-        app.query_one("#force").value = ""  # type: ignore[attr-defined]
+        app.query_one("#force").value = ""  # type: ignore[attr-defined]  # an Input
         reply = await press(pilot, app, station, *"engine.bolt2_e = tightened", "enter")
         assert reply.accepted, reply.reason
 
@@ -184,7 +184,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
 
         # A force outside the variable's domain is refused, with the domain.
         await pilot.press("f")
-        app.query_one("#force").value = ""  # type: ignore[attr-defined]
+        app.query_one("#force").value = ""  # type: ignore[attr-defined]  # an Input
         refused = await press(pilot, app, station, *"ur.pos_m = nowhere", "enter")
         assert not refused.accepted
         assert refused.reason == "'nowhere' is outside the domain of ur.pos_m ({home, at_bolt1, at_bolt2, unknown})"

@@ -60,7 +60,7 @@ def test_first_plan_then_a_shorter_one_marked_minimal() -> None:
     assert len(final.steps) < len(first.steps) and final.stats.minimal and not first.stats.minimal
     assert final.stats.first_length == len(first.steps)
     for plan in answers:
-        validate_plan(compiled, compiled.initial(), plan, all_of(*goals.values()))  # type: ignore[arg-type]
+        validate_plan(compiled, compiled.initial(), plan, all_of(*goals.values()))  # type: ignore[arg-type]  # the answer is a Plan here
 
 
 def test_a_first_plan_shown_minimal_by_a_star_is_marked_so() -> None:

@@ -103,7 +103,7 @@ def test_new_device_writes_the_driver_skeleton_of_the_models_resources(project: 
     pyproject = tomllib.loads((project / "pyproject.toml").read_text())
     assert pyproject["project"]["entry-points"]["statehub.drivers"] == {"clamp": "scaffold_cell.drivers.clamp:PLUGIN"}
     config, _ = fresh_station(project)
-    device = config.device("clamp")  # type: ignore[attr-defined]
+    device = config.device("clamp")  # type: ignore[attr-defined]  # the generated project's config
     assert (device.mode, device.params) == ("emulate", {"host": "192.0.2.10", "port": 502})
     test = (project / "tests" / "test_clamp.py").read_text()
     assert '@pytest.mark.parametrize("resource", ["clamp"])' in test and "model_test(hub.target, resource" in test
@@ -132,7 +132,7 @@ def test_new_device_of_a_type_the_model_lacks_adds_a_stub_resource(project: Path
     assert (project / "scaffold_cell" / "devices" / "label_printer.py").is_file()
     config, model = fresh_station(project)  # hubs.toml fits the model: the new hub serves the new resource
     assert model.problems() == [] and model.resource_by_name["label_printer"].device_type == "label_printer"
-    assert config.hub_of("label_printer").name == "label_printer"  # type: ignore[attr-defined]
+    assert config.hub_of("label_printer").name == "label_printer"  # type: ignore[attr-defined]  # the generated project's config
     assert '"on_m": (False, True),' in (project / "scaffold_cell" / "drivers" / "label_printer.py").read_text()
 
 

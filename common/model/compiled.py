@@ -74,7 +74,7 @@ def compile_assignments(
     body = "; ".join(parts) if parts else "pass"
     namespace: dict[str, object] = {}
     exec(f"def apply(s):\n    l = list(s); {body}\n    return tuple(l)", namespace)
-    return namespace["apply"]  # type: ignore[return-value]
+    return namespace["apply"]  # type: ignore[return-value]  # exec defines it: no static type
 
 
 class GuardSet(dict[str, Predicate]):

@@ -96,12 +96,12 @@ class Variable:
 
     # Predicate construction. Variables are keyed by path everywhere else, so
     # overriding == for them does not disturb dicts or sets of paths.
-    def __eq__(self, other: object) -> Predicate:  # type: ignore[override]
+    def __eq__(self, other: object) -> Predicate:  # type: ignore[override]  # == builds a predicate (the DSL)
         from .predicates import eq
 
         return eq(self.path, other)
 
-    def __ne__(self, other: object) -> Predicate:  # type: ignore[override]
+    def __ne__(self, other: object) -> Predicate:  # type: ignore[override]  # != builds a predicate (the DSL)
         from .predicates import ne
 
         return ne(self.path, other)

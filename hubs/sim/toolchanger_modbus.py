@@ -111,7 +111,7 @@ class ToolChangerPhysics:
     @classmethod
     def holding(cls, tool: str, **kwargs: object) -> ToolChangerPhysics:
         """Start with ``tool`` coupled and locked, away from the dock."""
-        sim = cls(**kwargs)  # type: ignore[arg-type]
+        sim = cls(**kwargs)  # type: ignore[arg-type]  # the constructor checks the keywords
         sim.attached, sim.piston = tool, 1.0
         sim.in_dock[tool] = False
         sim.coils[COIL_LOCK] = True

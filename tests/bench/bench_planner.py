@@ -288,8 +288,8 @@ def bench_runs(runs: int) -> None:
             if isinstance(answers[0], Plan) and len(answers[0].steps) == len(answers[-1].steps):
                 first_minimal += 1
 
-    Planner.plan_anytime = recording  # type: ignore[method-assign]
-    RelaxedPlan.evaluate = counting  # type: ignore[method-assign]
+    Planner.plan_anytime = recording  # type: ignore[method-assign]  # counting, restored below
+    RelaxedPlan.evaluate = counting  # type: ignore[method-assign]  # counting, restored below
     # A* may improve each first plan here (in-process runs keep the first by default), to count how
     # often the first plan was already a shortest one.
     budget = replace(VIRTUAL_BUDGET, improve_expansions=20_000)
@@ -303,8 +303,8 @@ def bench_runs(runs: int) -> None:
                   f"{summary.operations_finished}/{summary.operations_total}, {summary.plans} plans, "
                   f"wall {summary.wall_seconds:.1f} s", file=sys.stderr)
     finally:
-        Planner.plan_anytime = original  # type: ignore[method-assign]
-        RelaxedPlan.evaluate = evaluate  # type: ignore[method-assign]
+        Planner.plan_anytime = original  # type: ignore[method-assign]  # restored
+        RelaxedPlan.evaluate = evaluate  # type: ignore[method-assign]  # restored
     firsts.sort()
     worst = max(heaviest)
     p99 = firsts[min(len(firsts) - 1, int(len(firsts) * 0.99))]

@@ -177,7 +177,7 @@ def measure(resources: int, seconds: float, rounds: int) -> tuple[Figures, dict[
         for round_ in range(rounds):
             for load in ("steady", "changing"):
                 for what in ("off", "on") if round_ % 2 == 0 else ("on", "off"):
-                    results.setdefault((load, what == "on"), []).append(tuple(run(what, load)))  # type: ignore[arg-type]
+                    results.setdefault((load, what == "on"), []).append(tuple(run(what, load)))  # type: ignore[arg-type]  # a pair of floats
                 mixed.setdefault(load, []).append(run("interleaved", load)[0])
         sizes = sorted(p.stat().st_size for p in (Path(tmp) / "runs").glob("*.sqlite"))
     print(f"    recordings written: {len(sizes)}, {sizes[0] / 1024:,.0f} to {sizes[-1] / 1024:,.0f} kB "

@@ -197,7 +197,7 @@ async def test_simulator_as_a_process() -> None:
         drv = make_driver("mir", "mir", "sim", params(int(line.rsplit(":", 1)[1])))
         await drv.connect()
         try:
-            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]
+            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]  # the driver's link
             await drv.write({"goto_c": "station"})
             await read_until(drv, pos_m="at_station")
             proc.kill()

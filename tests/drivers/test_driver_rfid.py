@@ -118,7 +118,7 @@ async def test_simulator_as_a_process(tmp_path: Path) -> None:
         drv = make_driver("rfid", "rfid", "sim", {"serial_port": str(link), "operators": [ALICE]})
         await drv.connect()
         try:
-            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]
+            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]  # the driver's link
             proc.stdin.write(ALICE + "\n")
             proc.stdin.flush()
             await read_until(drv, verified_m=True)
