@@ -164,8 +164,7 @@ async def test_a_crash_of_the_hubs_loop_drives_every_output_safe() -> None:
     await hub.state_where("rsp", lambda s: s.mirror is not None and s.locked_m is True)
     await hub.state_where("nr", lambda s: s.run_m is True)
     before = tool.safe_states, changer.safe_states
-    # method-assign: the instance's method replaced, a bug the loop does not expect.
-    hub.runtime._read_and_publish = _crash  # type: ignore[method-assign]
+    hub.runtime._read_and_publish = _crash  # type: ignore[method-assign]  # a bug the loop does not expect
     assert hub.task is not None
     with pytest.raises(SystemError, match="the loop crashed"):
         await asyncio.wait_for(hub.task, 5)
