@@ -127,7 +127,7 @@ def counterexample(model: Model, spec: Specification) -> list[str]:
             while parents[skey][0] is not None:
                 parent, label = parents[skey]
                 trace.append(label)
-                skey = parent  # type: ignore[assignment]
+                skey = parent  # type: ignore[assignment]  # the root's parent is None, never reached here
             return list(reversed(trace))
         for t in uncontrollable:
             if not t.guard.eval(state):

@@ -199,7 +199,7 @@ def cmd_certs(args: argparse.Namespace) -> int:
     return 0
 
 
-def register_certs_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_certs_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add `certs init` and `certs issue` to hubctl."""
     certs = sub.add_parser("certs", help="the station's certificates for [security] mode = \"tls\"")
     certs_sub = certs.add_subparsers(dest="certs_command", required=True)

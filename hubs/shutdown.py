@@ -20,14 +20,15 @@ async def wait_for_stop_or_crash(stop: asyncio.Event, tasks: Sequence[asyncio.Ta
     """Return when `stop` is set; raise the exception of the first task that fails. A task that
     ends without an error (a self-test that reported) is no crash."""
     stopped = asyncio.create_task(stop.wait(), name="stop")
-    pending: set[asyncio.Future[object]] = {stopped, *tasks}
+    pending: set[asyncio.Task[object]] = {stopped, *tasks}
     try:
         while stopped in pending:
             done, pending = await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
             for task in done:
-                if task is not stopped and not task.cancelled() and task.exception() is not None:
-                    log.error("hub task %s crashed", task.get_name() if isinstance(task, asyncio.Task) else task)
-                    raise task.exception()  # type: ignore[misc]
+                error = None if task is stopped or task.cancelled() else task.exception()
+                if error is not None:
+                    log.error("hub task %s crashed", task.get_name())
+                    raise error
     finally:
         stopped.cancel()
 

@@ -14,7 +14,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from hub_process import HubProcess
+
+from tests.hub_process import HubProcess
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from common.bus.inbox import Inbox
-from common.bus.protocol import Bus, BusClosed, LivelinessEvent, Request, Sample
+from common.bus.protocol import Bus, BusClosed, LivelinessEvent, Reply, Request, Sample
 from common.bus.zenoh_bus import ZenohBus
 from common.bus.zenoh_config import zenoh_config
 from common.plumbing.lifecycle import free_port
@@ -79,7 +79,7 @@ async def bus(prefix: str) -> AsyncIterator[tuple[Bus, Peers]]:
 
 
 async def next_event(watch: object, timeout: float) -> LivelinessEvent:
-    return await asyncio.wait_for(watch.get(), timeout)  # type: ignore[attr-defined]
+    return await asyncio.wait_for(watch.get(), timeout)  # type: ignore[attr-defined]  # a subscription or a liveliness watch
 
 
 # --- keys ----------------------------------------------------------------------------------
@@ -341,7 +341,7 @@ async def test_get_from_a_queryable_in_another_process(bus: tuple[Bus, Peers], p
     b, peers = bus
     await peers.start("queryable")
     deadline = time.monotonic() + STARTUP
-    replies = []
+    replies: list[Reply] = []
     while not replies and time.monotonic() < deadline:
         replies = await b.get(f"{prefix}/q/abc?x=1", payload=b"hi", timeout=1.0)
     assert [(r.key, r.payload, r.ok) for r in replies] == [(f"{prefix}/q/abc", f"{prefix}/q/abc|x=1|hi".encode(), True)]

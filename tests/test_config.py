@@ -53,7 +53,7 @@ def tiny_model() -> Model:
 
 def error_of(text: str, **kwargs: object) -> ConfigError:
     with pytest.raises(ConfigError) as caught:
-        parse_config(text, "station.toml", **kwargs)  # type: ignore[arg-type]
+        parse_config(text, "station.toml", **kwargs)  # type: ignore[arg-type]  # each test passes its keywords
     return caught.value
 
 

@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TypeVar
 
+import msgspec
 import pytest
 from textual.pilot import Pilot
 from textual.widgets import Static
@@ -110,7 +111,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
 
         # Pause, then start: accepted, but it waits for resume.
         assert (await press(pilot, app, station, "p")).accepted
-        await until(pilot, station, lambda: station.watch.status().paused, "the controller reports paused")
+        await until(pilot, station, lambda: station.watch.current_status().paused, "the controller reports paused")
         started = await on_operation(pilot, app, station, "PlaceBolts", "s")
         assert started.accepted and "starts on resume" in started.reason
         assert op_state(station, "PlaceBolts") == OperationState.INITIAL
@@ -119,7 +120,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
                     "PlaceBolts executes")
         await until(pilot, station, lambda: app.state_view.values.get("human.instr_c") == "place_bolts",
                     "the console shows the operator's instruction")
-        assert not station.watch.status().paused
+        assert not station.watch.current_status().paused
 
         # A refused request: its reason is on the screen.
         refused = await on_operation(pilot, app, station, "PlaceBolts", "s")
@@ -131,7 +132,8 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         assert (await on_operation(pilot, app, station, "PlaceBolts", "x")).accepted
         await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.INITIAL,
                     "PlaceBolts stops")
-        await until(pilot, station, lambda: not station.watch.status().plan.goals, "the plan is dropped")
+        await until(pilot, station, lambda: (plan := station.watch.current_status().plan) is None or not plan.goals,
+                    "the plan is dropped")
         assert (await on_operation(pilot, app, station, "PlaceBolts", "s")).accepted
         await until(pilot, station, lambda: op_state(station, "PlaceBolts") == OperationState.EXECUTING,
                     "PlaceBolts runs again")
@@ -156,7 +158,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
         # Force an estimate through the input, see it forced in the controller's state, then undo it.
         forced_at = time.monotonic()
         await pilot.press("f")
-        app.query_one("#force").value = ""  # type: ignore[attr-defined]
+        app.query_one("#force").value = ""  # type: ignore[attr-defined]  # an Input
         reply = await press(pilot, app, station, *"engine.bolt2_e = tightened", "enter")
         assert reply.accepted, reply.reason
 
@@ -182,7 +184,7 @@ async def test_console_drives_every_action(console_station: Station, tmp_path: P
 
         # A force outside the variable's domain is refused, with the domain.
         await pilot.press("f")
-        app.query_one("#force").value = ""  # type: ignore[attr-defined]
+        app.query_one("#force").value = ""  # type: ignore[attr-defined]  # an Input
         refused = await press(pilot, app, station, *"ur.pos_m = nowhere", "enter")
         assert not refused.accepted
         assert refused.reason == "'nowhere' is outside the domain of ur.pos_m ({home, at_bolt1, at_bolt2, unknown})"
@@ -205,7 +207,7 @@ async def test_reference_station_runs_to_completion_from_the_console(tmp_path: P
     with Station(tmp_path, config=config, speed=5.0, hold=True) as station:
         station.start(timeout=60)
         app = console_for(station)
-        tasks = station.model.resource_by_name["human"].parameters["tasks"]
+        tasks = msgspec.convert(station.model.resource_by_name["human"].parameters["tasks"], list[str])
         operations = [op.name for op in station.model.operations]
         confirmed: list[str] = []
         async with app.run_test(size=SCREEN) as pilot:

@@ -91,7 +91,8 @@ def test_a_goal_without_a_plan_goes_to_error_once_and_is_retried_with_backoff() 
 
 def test_a_shorter_plan_is_taken_only_while_valid_from_the_measured_state() -> None:
     core = started_core()
-    plan = core.progress.plan  # type: ignore[union-attr]
+    assert core.progress is not None
+    plan = core.progress.plan
     request = PlanRequest(core.generation, plan.states[0], {"LampOn": lamp_beside_a_gauge().operation_by_name[
         "LampOn"].goal}, frozenset())
     # Not shorter than what is left: refused.

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from deploy_support import REPO, Run, hubctl, station_toml
 
 from common.plumbing.lifecycle import free_port
 from deploy.remote.wheel import Wheel, build_wheel
+from tests.deploy_support import REPO, Run, hubctl, station_toml
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]  # a hung ssh must not hang the suite
 
@@ -243,7 +243,7 @@ def test_first_deploy_then_an_idempotent_redeploy(site):
     unit_path = site.root / "etc" / "systemd" / "system" / UNIT
     analyze = shutil.which("systemd-analyze")
     if analyze is None:
-        from test_units import structural_problems
+        from tests.test_units import structural_problems
 
         assert structural_problems(unit_path.read_text(), 252) == []
     else:

@@ -52,8 +52,8 @@ def test_an_invalid_station_file_is_reported_with_file_and_line(tmp_path: Path,
 
 def test_a_missing_config_file_or_unknown_hub_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     missing = tmp_path / "nowhere.toml"
-    for argv, prog in (([sys.executable, "-m", "hubs", "pi-tool", "--config", missing], "hub pi-tool"),
-                       ([sys.executable, "-m", "controller", "--config", missing], "controller")):
+    for argv, prog in (([sys.executable, "-m", "hubs", "pi-tool", "--config", str(missing)], "hub pi-tool"),
+                       ([sys.executable, "-m", "controller", "--config", str(missing)], "controller")):
         result = run(*argv)
         assert (result.returncode, result.stderr) == (2, f"{prog}: cannot read {missing}: No such file or directory\n")
     unknown = run(sys.executable, "-m", "hubs", "pi-nowhere", "--config", CONFIG)

@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 import pytest
-from scaffold_support import venv_lock
 
 from deploy.modeltest import Options
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.registry import find_driver
 from hubs.sim.registry import find_simulator, host_port
+from tests.scaffold_support import venv_lock
 
 if TYPE_CHECKING:
     from deploy.scaffold.testing import ModelTest, StationHubs

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from test_hub_runtime import Hub, RecordingDriver
 
 from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.model import Domain, Resource, command, measured
@@ -28,6 +27,8 @@ from common.wire.holder_token import Holder, declare_holder
 from common.wire.messages import Codec, HubStatus, OversizedPayload
 from controller.state import StateStore
 from controller.station_hold import ControllerConflict, StationHold
+from hubs.runtime import ResourceSlot
+from tests.test_hub_runtime import Hub, RecordingDriver
 
 
 def nutrunner() -> RecordingDriver:
@@ -99,14 +100,14 @@ async def test_a_second_controller_refuses_to_start_naming_the_first(tmp_path: P
     second = StationHold(bus, keys, StateStore(tmp_path / "b.sqlite"), "decs-second")
     with pytest.raises(ControllerConflict, match=r"held by controller decs-first \(epoch 1, host .*, pid \d+\)"):
         await second.acquire()
-    assert second.holder is None and await bus.alive_tokens(keys.all_holders) == {first.holder.key(keys)}  # type: ignore[union-attr]
+    assert second.holder is None and await bus.alive_tokens(keys.all_holders) == {first.holder.key(keys)}  # type: ignore[union-attr]  # the first holds the station
     # Each start of the same controller takes the next epoch, persisted before it is used.
     first.release()
     again = StationHold(bus, keys, first.store, "decs-again")
     await again.acquire()
     again.renew("a test")
     assert again.epoch == 3 and first.store.meta("epoch") == 3
-    assert {Holder.parse(keys, k).epoch for k in await bus.alive_tokens(keys.all_holders)} == {3}  # type: ignore[union-attr]
+    assert {Holder.parse(keys, k).epoch for k in await bus.alive_tokens(keys.all_holders)} == {3}  # type: ignore[union-attr]  # every token parses
     await bus.close()
 
 
@@ -172,7 +173,7 @@ async def test_a_crash_of_the_hubs_loop_drives_every_output_safe() -> None:
     await hub.bus.close()
 
 
-async def _crash(*_args: object) -> None:
+async def _crash(slot: ResourceSlot) -> None:
     raise SystemError("the loop crashed")
 
 

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -278,7 +279,7 @@ def test_hub_that_does_not_apply_commands_is_reported_by_its_mirror_lag(station:
     station.kill("pi-tool")
     station.start_hub("pi-tool")
     station.wait_for(station.watch.finished, RUN_TIMEOUT_S, "the station finishes with a working pi-tool")
-    assert station.processes["controller"].popen is controller and controller.poll() is None
+    assert controller is not None and station.processes["controller"].popen is controller and controller.poll() is None
     assert_station_done_each_bolt_once(station)
 
 
@@ -336,23 +337,26 @@ def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station
     baseline_cmd = {r: controller_commands(station, r)[-1].message for r in codecs}
     baseline_state = {r: station.watch.state(r) for r in codecs}
     persisted = station.persisted()
-    ops = op_states(station.watch.status())
+    ops = op_states(station.watch.current_status())
 
     published = flood(station, strategy, examples=100, spacing=0.01)
     # Out-of-domain commands for each resource in the holder's name (another's are not even decoded),
     # deterministically: the hub rejects them and says so.
     holder = {"controller": baseline_cmd["nr"].controller, "epoch": baseline_cmd["nr"].epoch}
+
+    def rejection(resource: str, sent_at: float, shown: str) -> Callable[[], Any]:
+        # Any: a state struct is generated from its resource's model; its fields have no static type.
+        return lambda: next((s.message for s in station.watch.states(resource) if s.at > sent_at
+                             and s.message.status == HubStatus.REJECTED and shown in s.message.detail), None)
+
     for resource, raw, shown in (
             ("nr", with_changes(message_samples(station)["cmd"][0], run_c=7, seq=10**6, **holder), "nr.run_c = 7 "),
             ("ur", with_changes(message_samples(station)["cmd"][1], ref_pos_c="on_the_moon", seq=10**6, **holder),
              "ur.ref_pos_c = 'on_the_moon' ")):
         sent_at = time.monotonic()
         station.watch.publish(station.keys.cmd(resource), raw)
-        rejected = station.wait_for(
-            lambda r=resource, t=sent_at, d=shown: next((s.message for s in station.watch.states(r) if s.at > t
-                                                         and s.message.status == HubStatus.REJECTED
-                                                         and d in s.message.detail), None),
-            3, f"{resource} rejects an out-of-domain command")
+        rejected = station.wait_for(rejection(resource, sent_at, shown), 3,
+                                    f"{resource} rejects an out-of-domain command")
         assert "outside its domain" in rejected.detail
         codec = codecs[resource]
         assert mirror_key(rejected.mirror, codec) == mirror_key(baseline_state[resource].mirror, codec)
@@ -382,7 +386,7 @@ def test_garbage_on_every_key_changes_nothing_and_stops_nothing(station: Station
         assert any(s.message.status == HubStatus.REJECTED for s in states), f"{resource} rejected nothing"
     # ... nor the controller's state.
     assert station.persisted() == persisted
-    assert op_states(station.watch.status()) == ops and station.watch.finished()
+    assert op_states(station.watch.current_status()) == ops and station.watch.finished()
     # The garbage did arrive (the watcher, on the same keys, could not decode it either) and was logged.
     assert sum(station.watch.undecodable().values()) >= published // 2
     hub_log = station.processes["pi-tool"].tail(10**7)

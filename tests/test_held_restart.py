@@ -48,15 +48,16 @@ def test_a_resource_without_mirror_at_restart_is_sent_nothing_until_its_mirror_a
     frozen_at = station.freeze("ur10")
     station.kill("controller")
     station.start_controller(fresh=False, mirror_wait=0.5)
-    status = station.wait_for(lambda: (s := station.watch.status()) is not None and s.controller != first and s,
-                              15, "a status from the restarted controller")
+    status = station.wait_for(
+        lambda: s if (s := station.watch.status()) is not None and s.controller != first else None,
+        15, "a status from the restarted controller")
     second = status.controller
     station.wait_for(lambda: controller_commands(station, "nr", second), 10, "the nutrunner commanded")
-    station.wait_for(lambda: any(isinstance(e, MirrorsMissing) for e in station.watch.status().events), 5,
+    station.wait_for(lambda: any(isinstance(e, MirrorsMissing) for e in station.watch.current_status().events), 5,
                      "the held robot reported")
     time.sleep(1.5)  # 15 re-send periods
     assert controller_commands(station, "ur", second) == [], "a command went to the robot without its mirror"
-    (event,) = [e for e in station.watch.status().events if isinstance(e, MirrorsMissing)]
+    (event,) = [e for e in station.watch.current_status().events if isinstance(e, MirrorsMissing)]
     assert event.resources == {"ur10": ["ur"]}
 
     thawed_at = station.thaw("ur10")

@@ -94,7 +94,7 @@ class Hub:
         self.keys = station_keys(STATION)
         self.codecs = {r.name: Codec(r) for r in self.model.resources}
         self.runtime = HubRuntime(hub="h", station=STATION, model=self.model, drivers=drivers,
-                                  bus=self.bus, rate_hz=50, command_timeout_s=command_timeout_s)  # type: ignore[arg-type]
+                                  bus=self.bus, rate_hz=50, command_timeout_s=command_timeout_s)
         self.stop = asyncio.Event()
         self.task: asyncio.Task[None] | None = None
 

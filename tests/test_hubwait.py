@@ -11,7 +11,6 @@ import asyncio
 import sys
 
 import pytest
-from deploy_support import REPO, station_toml
 
 from common.bus.protocol import Bus, Request
 from common.bus.zenoh_bus import ZenohBus
@@ -25,6 +24,7 @@ from deploy.remote.hubwait import HubWaitError, HubWatch, watch_config, watch_en
 from deploy.remote.progress import Progress, StepFailed
 from hubs.drivers.base import SelftestReport
 from hubs.selftest import report_message
+from tests.deploy_support import REPO, station_toml
 
 pytestmark = pytest.mark.timeout(60)
 

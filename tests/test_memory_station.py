@@ -21,12 +21,14 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
 from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.bus.protocol import Sample, Subscription
 from common.config.hubs_toml import load_station
+from common.model import Value
 from common.wire.ctl import HubGone, StatusMessage
 from common.wire.messages import Codec, MessageError
 from controller.console.statusview import StatusFollower
@@ -38,6 +40,12 @@ ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "hubs.toml"
 FAULT_STATION = ROOT / "tests" / "fault_station" / "hubs.toml"
 WAIT_S = 30.0  # generous bound for a loaded machine; the runs take a few seconds
+
+
+class LastCommand(NamedTuple):
+    values: dict[str, Value | None]
+    seq: int
+    controller: str
 
 
 @dataclass
@@ -129,6 +137,12 @@ class MemoryStation:
     def status(self) -> StatusMessage | None:
         return self.statuses[-1] if self.statuses else None
 
+    def current_status(self) -> StatusMessage:
+        """The latest status, where the test has seen one already."""
+        status = self.status()
+        assert status is not None, "no status from the controller yet"
+        return status
+
     def finished_operations(self) -> list[str]:
         status = self.status()
         return [op.name for op in status.operations if op.state == "finished"] if status is not None else []
@@ -137,14 +151,14 @@ class MemoryStation:
         status = self.status()
         return {h.resource: (h.healthy, h.reason) for h in status.health} if status is not None else {}
 
-    def last_commands(self) -> dict[str, tuple[object, ...]]:
+    def last_commands(self) -> dict[str, LastCommand]:
         """Per commanded resource: the values, seq and controller of the last command the watcher saw."""
-        last: dict[str, tuple[object, ...]] = {}
+        last: dict[str, LastCommand] = {}
         for sample in self.commands:
             resource = self.keys.resource_of(sample.key) or sample.key
             codec = self.codecs[resource]
             command = codec.decode_command(sample.payload)
-            last[resource] = (codec.values(command), command.seq, command.controller)  # type: ignore[attr-defined]
+            last[resource] = LastCommand(codec.values(command), command.seq, command.controller)
         return last
 
     def all_healthy(self) -> bool:
@@ -170,8 +184,8 @@ class MemoryStation:
 async def station_at(tmp_path: Path) -> AsyncIterator[Callable[..., Awaitable[MemoryStation]]]:
     stations: list[MemoryStation] = []
 
-    async def start(config_path: Path, **options: object) -> MemoryStation:
-        station = MemoryStation(config_path, tmp_path / "controller.sqlite", **options)  # type: ignore[arg-type]
+    async def start(config_path: Path, *, speed: float = 1.0, hold: bool = False) -> MemoryStation:
+        station = MemoryStation(config_path, tmp_path / "controller.sqlite", speed=speed, hold=hold)
         stations.append(station)
         await station.start()
         return station
@@ -186,10 +200,10 @@ async def station_at(tmp_path: Path) -> AsyncIterator[Callable[..., Awaitable[Me
 async def test_the_controller_and_the_hubs_run_the_station_to_the_end(
         station_at: Callable[..., Awaitable[MemoryStation]]) -> None:
     station = await station_at(FAULT_STATION, speed=5.0)
-    await station.wait_for(lambda: station.status() is not None and station.status().finished,  # type: ignore[union-attr]
+    await station.wait_for(lambda: (status := station.status()) is not None and status.finished,
                            "every operation finishes")
-    status = station.status()
-    assert status is not None and {op.state for op in status.operations} == {"finished"}, status.operations
+    status = station.current_status()
+    assert {op.state for op in status.operations} == {"finished"}, status.operations
     assert set(station.last_commands()) == {"nr", "ur"}
     assert station.all_healthy(), station.health()
 
@@ -199,8 +213,8 @@ async def test_the_reference_station_runs_its_first_operations(
         station_at: Callable[..., Awaitable[MemoryStation]]) -> None:
     station = await station_at(REFERENCE, speed=20.0)
     await station.wait_for(lambda: len(station.finished_operations()) >= 3, "three operations finish")
-    status = station.status()
-    assert status is not None and not any(op.state == "error" for op in status.operations), status.operations
+    status = station.current_status()
+    assert not any(op.state == "error" for op in status.operations), status.operations
     assert station.all_healthy(), station.health()
 
 
@@ -213,7 +227,7 @@ async def test_a_stopped_hub_is_unhealthy_and_healthy_again_when_it_is_back(
     reason = station.health()["nr"][1]
     assert "not alive" in reason, reason
     assert station.health()["ur"] == (True, "")  # the other hub's resource is not touched
-    assert HubGone(hub="pi-tool") in station.status().events  # type: ignore[union-attr]
+    assert HubGone(hub="pi-tool") in station.current_status().events
     await station.start_hub("pi-tool")
     await station.wait_for(station.all_healthy, "nr healthy again after the hub's restart")
 

@@ -26,7 +26,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from hub_process import HubProcess, running_hub
 
 from common.bus.zenoh_config import zenoh_config
 from common.config.hubs_toml import load_station
@@ -41,6 +40,7 @@ from deploy.modeltest.cli import Refused, select_resources
 from deploy.modeltest.link import BusThread
 from deploy.modeltest.runner import ModelTest
 from deploy.modeltest.session import HOME, MODEL, SETTLE
+from tests.hub_process import HubProcess, running_hub
 
 pytest_plugins = ["deploy.modeltest.pytest_plugin"]
 

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from scaffold_support import generated_projects_removed
+
+from tests.scaffold_support import generated_projects_removed
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "new-station.md"

@@ -26,7 +26,7 @@ FAULT_MODEL = "tests.fault_station.model:build_model"
 
 def writer(directory: Path, **options: object) -> RecordingWriter:
     settings: dict[str, object] = {"max_bytes": 50 * MB, "keep": 10, "flush_s": 0.01} | options
-    return RecordingWriter(directory, RunMeta(station="s", mode="in-process", started=1000.0), **settings)  # type: ignore[arg-type]
+    return RecordingWriter(directory, RunMeta(station="s", mode="in-process", started=1000.0), **settings)  # type: ignore[arg-type]  # each test passes its keywords
 
 
 def test_records_are_read_back_in_order_with_their_types_and_filters(tmp_path: Path) -> None:
@@ -113,7 +113,7 @@ def test_a_record_that_cannot_be_encoded_is_dropped_and_counted_and_the_rest_wri
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     w = writer(tmp_path)
     w.put(0.0, RecordKind.TICK, "", TickRecord())
-    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": object()}))  # type: ignore[dict-item]
+    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": object()}))  # type: ignore[dict-item]  # an unencodable value on purpose
     w.put(1.0, RecordKind.TICK, "", TickRecord())
     w.close()
     assert w.dropped == 1 and "a state record of 'nr' cannot be encoded" in caplog.text
@@ -176,7 +176,7 @@ def test_an_ingested_batch_is_one_row_read_back_as_one_state_record_per_resource
             ("ur", StateRecord(values={"ur.pos_m": "at_bolt1"}, status="ok")),
             ("nr", StateRecord(values={"nr.run_m": False}, status="ok", mirror_seq=3)),
             ("ur", StateRecord(status="lost", detail="cable"))]
-        assert [r.data.status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
+        assert [r.data_as(StateRecord).status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
         assert [r.kind for r in run.events(kinds=["tick"], key="ur")] == []
 
 

@@ -18,7 +18,7 @@ from common.config.hubs_toml import RecordingConfig
 from common.stations import load_model
 from controller.recording.hooks import open_recording
 from controller.recording.reader import list_runs, open_run
-from controller.recording.schema import CommandRecord, RecordKind, RunMeta
+from controller.recording.schema import CommandRecord, LivelinessRecord, RecordKind, RunMeta, WatchdogRecord
 from controller.recording.writer import RECORDING_DIR_ENV
 from controller.timeline.model import build_timeline
 from deploy.cli import main as hubctl
@@ -44,6 +44,7 @@ def record_in_process(directory: Path, seed: int = 2) -> Path:
     meta = RunMeta(station=model.name, model=FAULT_MODEL, mode="in-process", seed=seed,
                    budget={"first_expansions": 20_000, "improve_expansions": 0, "symbolic_layers": 500})
     recording = open_recording(RecordingConfig(dir=str(directory)), meta, model)
+    assert recording is not None, "the run's recording could not be opened"
     summary = run_in_process(model, seed=seed, failure={"nr": 0.3}, recording=recording)
     assert summary.finished
     return recording.path
@@ -101,8 +102,10 @@ def test_hub_killed_mid_run_recording_replays_to_the_same_decisions(recorded_sta
     (info,) = list_runs(tmp_path / "runs")
     assert info.meta.mode == "service" and info.meta.outcome == "finished" and info.meta.operations_done == 4
     with open_run(info.path) as run:
-        (gone,) = [r.t for r in run.events(kinds=[RecordKind.LIVELINESS], key="pi-tool") if not r.data.alive]
-        verdicts = [(r.t, r.data.verdict) for r in run.events(kinds=[RecordKind.WATCHDOG], key="nr", since=gone)]
+        (gone,) = [r.t for r in run.events(kinds=[RecordKind.LIVELINESS], key="pi-tool")
+                   if not r.data_as(LivelinessRecord).alive]
+        verdicts = [(r.t, r.data_as(WatchdogRecord).verdict)
+                    for r in run.events(kinds=[RecordKind.WATCHDOG], key="nr", since=gone)]
         result = Replayer(run).replay()
         timeline = build_timeline(run)
     # The unhealthy span: from the hub's token vanishing until the restarted hub's states come.

@@ -61,7 +61,7 @@ class Rig:
         self.wakes += 1
 
     def ask(self, action: str, **fields: object) -> ConsoleReply:
-        return self.requests.apply(ConsoleRequest(action=action, origin="test", **fields))  # type: ignore[arg-type]
+        return self.requests.apply(ConsoleRequest(action=action, origin="test", **fields))  # type: ignore[arg-type]  # each test passes its fields
 
     def value(self, path: str) -> Value:
         return self.core.state[self.compiled.index[path]]

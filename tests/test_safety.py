@@ -36,7 +36,7 @@ from common.wire.messages import decode, encode
 from controller.control import ControlCore
 from controller.requests import Requests
 from controller.service import ControllerService
-from controller.stack import build_controller_stack
+from controller.stack import ControllerStack, build_controller_stack
 from tests.test_memory_station import FAULT_STATION, MemoryStation, Running
 
 TOOL_RELEASED = "tool_released_outside_its_slot"
@@ -44,13 +44,13 @@ NUTRUNNER_RUNS = "robot_moves_while_its_nutrunner_runs"
 
 
 @pytest.fixture(scope="module")
-def reference() -> object:
+def reference() -> ControllerStack:
     return build_controller_stack(build_model())
 
 
 @pytest.fixture
-def core(reference: object) -> ControlCore:
-    return reference.control_core()  # type: ignore[attr-defined,no-any-return]
+def core(reference: ControllerStack) -> ControlCore:
+    return reference.control_core()
 
 
 def commands(core: ControlCore) -> dict[str, Value]:
@@ -119,7 +119,7 @@ def test_a_forbidden_state_on_measured_values_stops_deliberate_transitions_and_i
     assert core.tick().started, "the first operations start from the initial state"
     plan(core)
     assert core.progress is not None and core.progress.next_step() is not None
-    running = {"nr.run_m": True, "rsp.tool_m": "nutrunner", "ur.pos_m": "unknown"}
+    running: dict[str, Value] = {"nr.run_m": True, "rsp.tool_m": "nutrunner", "ur.pos_m": "unknown"}
     core.ingest(running)
     for _ in range(3):
         result = core.tick()
@@ -142,6 +142,10 @@ def test_a_forbidden_state_on_measured_values_stops_deliberate_transitions_and_i
 
 # --- the service, its hubs on the in-memory bus (the fault station: a robot and a nutrunner) ------------
 
+def _dropped(key: str, payload: bytes, *, block: bool = False) -> None:
+    """A publish that sends nothing."""
+
+
 @pytest.fixture
 async def station(tmp_path: Path) -> AsyncIterator[MemoryStation]:
     station = MemoryStation(FAULT_STATION, tmp_path / "controller.sqlite", hold=True)
@@ -153,14 +157,14 @@ async def station(tmp_path: Path) -> AsyncIterator[MemoryStation]:
         await station.close()
 
 
-def commands_from(station: MemoryStation, resource: str, controller: str) -> list[tuple[dict[str, Value], int]]:
+def commands_from(station: MemoryStation, resource: str, controller: str) -> list[tuple[dict[str, Value | None], int]]:
     codec = station.codecs[resource]
-    found = []
+    found: list[tuple[dict[str, Value | None], int]] = []
     for sample in station.commands:
         if station.keys.resource_of(sample.key) == resource:
             command = codec.decode_command(sample.payload)
-            if command.controller == controller:  # type: ignore[attr-defined]
-                found.append((codec.values(command), command.seq))  # type: ignore[attr-defined]
+            if command.controller == controller:
+                found.append((codec.values(command), command.seq))
     return found
 
 
@@ -175,8 +179,8 @@ async def test_a_forced_command_goes_out_under_a_fresh_seq_that_its_hub_mirrors(
     sent = [seq for values, seq in commands_from(station, "ur", str(controller)) if values["ref_pos_c"] == "at_bolt1"]
     assert min(sent) == seq_before + 1 and set(sent) == {seq_before + 1}
     # The hub applied it, and the watchdog sees that: no mirror lag.
-    await station.wait_for(lambda: station.status() is not None and next(
-        h for h in station.status().health if h.resource == "ur").mirror_lag == 0  # type: ignore[union-attr]
+    await station.wait_for(lambda: (status := station.status()) is not None and next(
+        h for h in status.health if h.resource == "ur").mirror_lag == 0
         and station.all_healthy(), "ur mirrors the forced command")
 
 
@@ -187,11 +191,11 @@ async def test_a_restarted_controller_sends_nothing_to_a_resource_without_mirror
     await station.watcher.get(station.keys.ctl("request"), payload=encode(request))
     await station.wait_for(lambda: station.status() is not None and station.all_healthy()
                            and station.last_commands()["ur"][0] == {"ref_pos_c": "at_bolt1"}, "the robot commanded")
-    first = station.status().controller  # type: ignore[union-attr]
+    first = station.current_status().controller
     await station.stop("controller")
     # The robot's hub runs on, but its states do not reach anyone (a network partition).
     hub_bus = station.running["ur10"].bus
-    hub_bus.publish = lambda key, payload, block=False: None  # type: ignore[method-assign]
+    hub_bus.publish = _dropped  # type: ignore[method-assign]  # a partition: the instance's publish sends nothing
     bus = await type(hub_bus)(station.network).open()
     service = ControllerService(station.config, station.model, bus, db=str(station.db), mirror_wait_s=0.3,
                                 planner_process=False)
@@ -202,19 +206,21 @@ async def test_a_restarted_controller_sends_nothing_to_a_resource_without_mirror
         return next((s for s in reversed(station.statuses) if s.controller == controller), None)
 
     await station.wait_for(lambda: status_of(service.controller_id) is not None, "the new controller's status")
-    await station.wait_for(lambda: commands_from(station, "nr", service.controller_id), "nr commanded")
+    await station.wait_for(lambda: bool(commands_from(station, "nr", service.controller_id)), "nr commanded")
     for _ in range(10):  # a while of ticks and re-sends at 10 Hz
         await asyncio.sleep(0.1)
     assert commands_from(station, "ur", service.controller_id) == []
-    events = status_of(service.controller_id).events  # type: ignore[union-attr]
+    latest = status_of(service.controller_id)
+    assert latest is not None
+    events = latest.events
     assert MirrorsMissing({"ur10": ["ur"]}) in events
     assert service.command_hold.held == {"ur"}
 
     with contextlib.suppress(AttributeError):
         del hub_bus.publish  # its states flow again
-    await station.wait_for(lambda: commands_from(station, "ur", service.controller_id), "ur commanded again")
+    await station.wait_for(lambda: bool(commands_from(station, "ur", service.controller_id)), "ur commanded again")
     assert {values["ref_pos_c"] for values, _ in commands_from(station, "ur", service.controller_id)} == {"at_bolt1"}
     assert service.command_hold.held == frozenset()
-    await station.wait_for(lambda: HoldReleased("ur", "its mirror") in status_of(service.controller_id).events,  # type: ignore[union-attr]
-                           "the release reported")
+    await station.wait_for(lambda: (status := status_of(service.controller_id)) is not None
+                           and HoldReleased("ur", "its mirror") in status.events, "the release reported")
     assert first != service.controller_id

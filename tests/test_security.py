@@ -23,7 +23,6 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from hub_process import HubProcess
 
 from common.bus.station_net import station_zenoh_config
 from common.bus.zenoh_config import zenoh_config
@@ -39,6 +38,7 @@ from deploy.remote.deploy import hub_cert_files
 from deploy.remote.layout import Layout
 from deploy.remote.scripts import install_unit
 from deploy.remote.units import controller_unit, hub_unit
+from tests.hub_process import HubProcess
 
 ROOT = Path(__file__).resolve().parent.parent
 ATTEMPTS = 10  # rogue sessions per kind of attack
@@ -91,6 +91,11 @@ def _station_file(tmp: Path) -> Path:
     return path
 
 
+def _collector(samples: dict[str, list[bytes]], key: str) -> Callable[[zenoh.Sample], None]:
+    """Keep each sample's payload under `key` (the key appears with its first sample)."""
+    return lambda sample: samples.setdefault(key, []).append(bytes(sample.payload.to_bytes()))
+
+
 def _wait(condition: Callable[[], bool], timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
@@ -121,8 +126,7 @@ def station(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Station]:
     observer = station.session("op", rogue=False)  # a console: reads status, states and the global state
     keys = config.keys
     for key in (keys.state("nr"), keys.state("rsp"), keys.ctl("state"), keys.ctl("status")):
-        observer.declare_subscriber(key, lambda s, k=key: station.samples.setdefault(k, []).append(
-            bytes(s.payload.to_bytes())))
+        observer.declare_subscriber(key, _collector(station.samples, key))
     try:
         codec = Codec(model.resource_by_name["nr"])
         _wait(lambda: any(codec.decode_state(p).mirror is not None for p in station.samples.get(keys.state("nr"), []))
@@ -152,7 +156,8 @@ def _attempts(opens: Callable[[], zenoh.Session], station: Station, *, control: 
     """ATTEMPTS rogue sessions at once, each subscribing to the station's states and `ctl/**` and
     forging a command for SETTLE_S: (how many linked to anyone, how many samples of the station they
     received). The `control` keeps waiting (10 s at most) for all to link: a loaded machine is slow."""
-    keys, received = station.config.keys, []
+    keys = station.config.keys
+    received: list[zenoh.Sample] = []
     with ThreadPoolExecutor(ATTEMPTS) as pool:  # zenoh.open waits on its first connection: open them at once
         sessions = list(pool.map(lambda _: opens(), range(ATTEMPTS)))
     try:

@@ -31,6 +31,7 @@ from common.config.hubs_toml import load_station
 from common.stations import engine_assembly as ea
 from deploy.local.simworld import SimWorld
 from deploy.local.station import Options, run_station
+from hubs.drivers.emulated import EmulatedDriver
 from hubs.factory import build_drivers, load_overrides
 from hubs.protocols.coupler import TOOLS
 from hubs.protocols.ur import DASHBOARD_PORT, RTDE_PORT
@@ -93,8 +94,10 @@ def test_params_file_overrides_driver_parameters(tmp_path: Path) -> None:
     path = tmp_path / "o.json"
     path.write_text(json.dumps({"nr": {"delay": 0.5, "failure_probability": 1.0}}))
     drivers = build_drivers(config, "pi-tool", model, overrides=load_overrides(path))
-    assert drivers["nr"].emulator.failure == {"nr": 1.0}  # type: ignore[attr-defined]
-    assert drivers["nr"].emulator.delays == {"nr": 0.5}  # type: ignore[attr-defined]
+    nutrunner = drivers["nr"]
+    assert isinstance(nutrunner, EmulatedDriver)
+    assert nutrunner.emulator.failure == {"nr": 1.0}
+    assert nutrunner.emulator.delays == {"nr": 0.5}
     toml = tmp_path / "o.toml"
     toml.write_text('[nr]\ndelay = 0.5\n')
     assert load_overrides(toml) == {"nr": {"delay": 0.5}}
@@ -200,8 +203,8 @@ async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monk
 
         async def step(resource: str, path: str, target: object, expected: list[object], **command: object) -> None:
             since = cell.mark(path)
-            cell.command(resource, **command)  # type: ignore[arg-type]
-            await cell.wait(path, target)  # type: ignore[arg-type]
+            cell.command(resource, **command)  # type: ignore[arg-type]  # the table's values
+            await cell.wait(path, target)  # type: ignore[arg-type]  # the table's values
             went = cell.trace(path, since)
             assert went == expected, (f"{resource} {command}: {path} went {went} "
                                       f"(longest gap between commands {cell.longest_command_gap:.2f} s)")

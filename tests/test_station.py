@@ -14,6 +14,7 @@ from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+import msgspec
 import pytest
 
 from common.model import (
@@ -221,9 +222,15 @@ def test_station_has_24_bolts_with_tracking(station: Model) -> None:
     assert len([op for op in station.operations if op.name.startswith("MountFilter")]) == engine_assembly.FILTER_COUNT
 
 
+def ur_neighbours(model: Model) -> dict[str, tuple[str, ...]]:
+    """The robot's pose graph, from the poses and moves its resource was built with."""
+    parameters = model.resource_by_name["ur"].parameters
+    return neighbours(msgspec.convert(parameters["poses"], list[str]),
+                      msgspec.convert(parameters["allowed_moves"], list[tuple[str, str]]))
+
+
 def test_bolt_poses_form_a_ring_around_above_engine(station: Model) -> None:
-    robot = station.resource_by_name["ur"]
-    graph = neighbours(robot.parameters["poses"], robot.parameters["allowed_moves"])
+    graph = ur_neighbours(station)
     for i in engine_assembly.BOLTS:
         ring = {f"at_bolt{i % 24 + 1}", f"at_bolt{(i - 2) % 24 + 1}"}
         assert set(graph[f"at_bolt{i}"]) == ring | {"above_engine"}
@@ -323,8 +330,7 @@ def test_synthetic_station_builds(bolts: int, poses: int) -> None:
 
 def test_synthetic_ring_and_bolt_poses() -> None:
     model = synthetic.build_model(12, 5)
-    robot = model.resource_by_name["ur"]
-    graph = neighbours(robot.parameters["poses"], robot.parameters["allowed_moves"])
+    graph = ur_neighbours(model)
     assert graph["p0"] == ("p1", "p4")
     assert graph["p3"] == ("p2", "p4")
     tracking = {a.name: a for a in model.tracking}

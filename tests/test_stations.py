@@ -27,6 +27,7 @@ from controller.engine import Engine
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import run_in_process
 from deploy.local.station import Options, run_station
+from hubs.drivers.emulated import EmulatedDriver
 from hubs.factory import build_drivers, check_devices, effective_mode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -281,11 +282,14 @@ def test_hubs_emulate_station_types_from_the_model_alone() -> None:
     drivers = build_drivers(config, "conveyors", model)
     assert {type(d).__name__ for d in drivers.values()} == {"EmulatedDriver"}
     # the model says what its own device types do when commands stop, and how long an effect takes
-    assert drivers["infeed"].safe_values() == {"run_c": False}  # type: ignore[attr-defined]
+    infeed = drivers["infeed"]
+    assert isinstance(infeed, EmulatedDriver) and infeed.safe_values() == {"run_c": False}
     machine = build_drivers(config, "machine", model)
-    assert machine["door"].safe_values() == {}  # type: ignore[attr-defined]
-    assert machine["door"].emulator.delay_of(model.transition_by_name["door.open.starting.effect"]) == 0.4
-    assert machine["cnc"].emulator.delay_of(model.transition_by_name["cnc.cycle.starting.effect"]) == 0.5  # hubs.toml
+    door, cnc = machine["door"], machine["cnc"]
+    assert isinstance(door, EmulatedDriver) and isinstance(cnc, EmulatedDriver)
+    assert door.safe_values() == {}
+    assert door.emulator.delay_of(model.transition_by_name["door.open.starting.effect"]) == 0.4
+    assert cnc.emulator.delay_of(model.transition_by_name["cnc.cycle.starting.effect"]) == 0.5  # hubs.toml
     # `hubctl up --mode sim` leaves a type without a simulator emulated
     assert effective_mode("cnc_door", "emulate", "sim") == "emulate"
 

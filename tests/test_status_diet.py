@@ -17,7 +17,7 @@ import msgspec
 from common.bus.memory_bus import MemoryBus
 from common.model import OperationState
 from common.wire.ctl import (
-    HubAlive,
+    ConsoleEvent,
     HubGone,
     OperationInfo,
     PlanInfo,
@@ -36,7 +36,7 @@ RUN_OPERATIONS = 20
 
 
 def picture(uptime: float, ops: dict[str, OperationState], ages: dict[str, float | None], plan: PlanInfo,
-            events: list[HubAlive | HubGone]) -> StatusMessage:
+            events: list[ConsoleEvent]) -> StatusMessage:
     return StatusMessage(
         station="s", controller="c-1", time=uptime, uptime=uptime,
         operations=[OperationInfo(name, state) for name, state in ops.items()],
@@ -49,7 +49,7 @@ def test_deltas_merge_back_into_the_full_pictures_and_carry_only_what_changed() 
     diet, view = StatusDiet(full_every_s=100.0), StatusView()
     ops = {f"Op{i}": OperationState.INITIAL for i in range(30)}
     ages: dict[str, float | None] = {f"r{i}": 0.02 for i in range(10)}
-    log: list[HubAlive | HubGone] = []
+    log: list[ConsoleEvent] = []
     plan = PlanInfo(1, ["Op3"], 40, done_mask((), 40))
     sizes = []
     for t in range(60):

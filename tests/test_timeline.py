@@ -49,6 +49,7 @@ FAULT_MODEL = "tests.fault_station.model:build_model"
 def reference_run() -> Iterator[tuple[RunSummary, Path]]:
     model = load_model(REFERENCE_MODEL)
     recording = in_process_recording(model, REFERENCE_MODEL, None, seed=1, budget=VIRTUAL_BUDGET)
+    assert recording is not None, "the run's recording could not be opened"
     summary = run_in_process(model, seed=1, budget=VIRTUAL_BUDGET, recording=recording)
     assert summary.finished, summary.reason
     yield summary, recording.path
@@ -70,7 +71,7 @@ def test_the_spans_and_markers_are_the_recordings_events(reference_run: tuple[Ru
     assert timeline.resources == [r.name for r in model.resources]
     assert timeline.operations == [op.name for op in model.operations]
     # An operation's lane: a span per state it entered, from that record to the next one of it.
-    entered = sorted((key, t, data.after) for t, key, data in operations)  # type: ignore[attr-defined]
+    entered = sorted((key, t, data.after) for t, key, data in operations)  # type: ignore[attr-defined]  # operation records
     assert sorted((s.lane, s.start, s.label) for s in timeline.operation_spans) == entered
     # Every ability the controller started is a span, begun by a command and ended by a measured state.
     assert len(timeline.abilities) == summary.abilities > 50
@@ -80,7 +81,7 @@ def test_the_spans_and_markers_are_the_recordings_events(reference_run: tuple[Ru
         assert (span.end, span.lane) in states, span
     assert [(m.t, m.kind) for m in timeline.plans] == [(t, "plan" if i == 0 else "replan")
                                                        for i, (t, _, _) in enumerate(requests)]
-    assert all(m.text.startswith(data.reason) and "steps" in m.text  # type: ignore[attr-defined]
+    assert all(m.text.startswith(data.reason) and "steps" in m.text  # type: ignore[attr-defined]  # plan requests
                for m, (_, _, data) in zip(timeline.plans, requests, strict=True))
     assert not timeline.faults and not timeline.unhealthy and not timeline.note
 
@@ -235,7 +236,7 @@ async def test_the_console_shows_the_current_runs_timeline_on_t(tmp_path: Path,
     fault_recording(tmp_path)
     model = load_model(FAULT_MODEL)
     info = StationInfo(station="fault_station", kinds={p: v.kind for p, v in model.variables.items()})
-    app = ConsoleApp(info, Quiet())  # type: ignore[arg-type]
+    app = ConsoleApp(info, Quiet())  # type: ignore[arg-type]  # a canned feed
     async with app.run_test(size=(120, 40)) as pilot:
         await pilot.press("t")
         for _ in range(200):

@@ -15,7 +15,6 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from deploy_support import hubctl, station_toml
 
 from common.config.hubs_toml import parse_config
 from deploy.remote.layout import Layout
@@ -29,6 +28,7 @@ from deploy.remote.units import (
     station_units,
     write_units,
 )
+from tests.deploy_support import hubctl, station_toml
 
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 

@@ -61,13 +61,18 @@ class TlsSettings:
 
 
 class NetworkSettings(Protocol):
-    """What `zenoh_config_for` needs; `common.config.hubs_toml.NetworkConfig` satisfies it."""
+    """What `zenoh_config_for` needs; `common.config.hubs_toml.NetworkConfig` satisfies it (read only: it is frozen)."""
 
-    mode: str
-    listen: Sequence[str]
-    connect: Sequence[str]
-    lease_ms: int
-    max_message_bytes: int
+    @property
+    def mode(self) -> str: ...
+    @property
+    def listen(self) -> Sequence[str]: ...
+    @property
+    def connect(self) -> Sequence[str]: ...
+    @property
+    def lease_ms(self) -> int: ...
+    @property
+    def max_message_bytes(self) -> int: ...
 
 
 def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect: Iterable[str] = (),

@@ -14,7 +14,7 @@ them, the planner never plans with them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from .model import Model
@@ -58,7 +58,8 @@ def predicate_source(predicate: Predicate, index: Mapping[str, int]) -> str:
     return emit(predicate)
 
 
-def compile_predicate(predicate: Predicate, index: Mapping[str, int]) -> Callable[[State], bool]:
+def compile_predicate(predicate: Predicate, index: Mapping[str, int]) -> Callable[[Sequence[Value]], bool]:
+    # Any sequence: the generated expression only indexes the state (the timeline keeps it in a list).
     return eval(f"lambda s: {predicate_source(predicate, index)}")
 
 
@@ -73,7 +74,7 @@ def compile_assignments(
     body = "; ".join(parts) if parts else "pass"
     namespace: dict[str, object] = {}
     exec(f"def apply(s):\n    l = list(s); {body}\n    return tuple(l)", namespace)
-    return namespace["apply"]  # type: ignore[return-value]
+    return namespace["apply"]  # type: ignore[return-value]  # exec defines it: no static type
 
 
 class GuardSet(dict[str, Predicate]):
@@ -166,7 +167,7 @@ class CompiledModel:
             as_list[self.index[path]] = value
         return tuple(as_list)
 
-    def predicate(self, predicate: Predicate) -> Callable[[State], bool]:
+    def predicate(self, predicate: Predicate) -> Callable[[Sequence[Value]], bool]:
         return compile_predicate(predicate, self.index)
 
     # --- semantics ------------------------------------------------------------------

@@ -103,7 +103,7 @@ class Model:
         return self.resource_by_name.get(path.split(".", 1)[0])
 
     def initial_state(self) -> dict[str, Value]:
-        return {path: v.initial for path, v in self.variables.items()}  # type: ignore[misc]
+        return {path: v.initial for path, v in self.variables.items()}
 
     def paths_of_kind(self, kind: Kind) -> list[str]:
         return [p for p, v in self.variables.items() if v.kind is kind]

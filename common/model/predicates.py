@@ -239,7 +239,7 @@ class Or(_Junction):
         return " || ".join(_wrap(p, nested=Or) for p in self.items)
 
 
-def _wrap(child: Predicate, nested: type) -> str:
+def _wrap(child: Predicate, nested: type[_Junction]) -> str:
     # A child of the same connective keeps its parentheses so that printing and
     # parsing preserve the tree exactly: parse(str(p)) == p.
     if isinstance(child, nested) or child.precedence <= nested.precedence:

@@ -80,14 +80,8 @@ class Variable:
     path: str
     kind: Kind
     domain: Domain
-    initial: Value | None = None
+    initial: Value
     description: str = field(default="", compare=False)
-
-    def __post_init__(self) -> None:
-        if self.initial is None:
-            # Measured variables start unknown on the wire; the model assumes the
-            # first value (false, the first name, the low bound) until measured.
-            object.__setattr__(self, "initial", self.domain.values[0])
 
     @property
     def resource(self) -> str:
@@ -102,12 +96,12 @@ class Variable:
 
     # Predicate construction. Variables are keyed by path everywhere else, so
     # overriding == for them does not disturb dicts or sets of paths.
-    def __eq__(self, other: object) -> Predicate:  # type: ignore[override]
+    def __eq__(self, other: object) -> Predicate:  # type: ignore[override]  # == builds a predicate (the DSL)
         from .predicates import eq
 
         return eq(self.path, other)
 
-    def __ne__(self, other: object) -> Predicate:  # type: ignore[override]
+    def __ne__(self, other: object) -> Predicate:  # type: ignore[override]  # != builds a predicate (the DSL)
         from .predicates import ne
 
         return ne(self.path, other)
@@ -145,13 +139,19 @@ class Variable:
         return f"Variable({self.path}: {self.kind.value} {self.domain.describe()})"
 
 
+def _initial(domain: Domain, initial: Value | None) -> Value:
+    # Measured variables start unknown on the wire; the model assumes the
+    # first value (false, the first name, the low bound) until measured.
+    return domain.values[0] if initial is None else initial
+
+
 def measured(path: str, domain: Domain = BOOL, initial: Value | None = None, description: str = "") -> Variable:
-    return Variable(path, Kind.MEASURED, domain, initial, description)
+    return Variable(path, Kind.MEASURED, domain, _initial(domain, initial), description)
 
 
 def estimated(path: str, domain: Domain = BOOL, initial: Value | None = None, description: str = "") -> Variable:
-    return Variable(path, Kind.ESTIMATED, domain, initial, description)
+    return Variable(path, Kind.ESTIMATED, domain, _initial(domain, initial), description)
 
 
 def command(path: str, domain: Domain = BOOL, initial: Value | None = None, description: str = "") -> Variable:
-    return Variable(path, Kind.COMMAND, domain, initial, description)
+    return Variable(path, Kind.COMMAND, domain, _initial(domain, initial), description)

@@ -63,4 +63,4 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
 
 
 def _as_list(actions: ActionsLike) -> list[Assign | str]:
-    return [actions] if isinstance(actions, str) else list(actions)
+    return [actions] if isinstance(actions, str | Assign) else list(actions)

@@ -42,7 +42,7 @@ class StatusView:
         cannot be applied (then `needs_full`)."""
         held = self.status
         same = held is not None and held.controller == message.controller
-        if same and (message.seq < held.seq or (message.seq == held.seq and not message.full)):  # type: ignore[union-attr]
+        if same and held is not None and (message.seq < held.seq or (message.seq == held.seq and not message.full)):
             return None  # a full picture asked for overtook it
         if message.full:
             self.status, self.needs_full = message, False

@@ -23,6 +23,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import Any, TypeVar
 
 import msgspec
 
@@ -42,12 +43,22 @@ class RecordingError(ValueError):
     """A file that is not a readable recording (names the file and why)."""
 
 
+Data = TypeVar("Data")
+
+
 @dataclass(frozen=True)
 class Record:
     t: float
     kind: RecordKind
     key: str
     data: RecordData
+
+    def data_as(self, data_type: type[Data]) -> Data:
+        """The data as the struct its kind holds (`events(kinds=...)` chose the kind): a typed read."""
+        if not isinstance(self.data, data_type):
+            raise RecordingError(f"a {self.kind.value} record of {self.key!r} at t={self.t:.3f} holds a "
+                                 f"{type(self.data).__name__}, not a {data_type.__name__}")
+        return self.data
 
 
 @dataclass(frozen=True)
@@ -59,7 +70,9 @@ class RunInfo:
     problem: str = ""  # set for a file that could not be read; meta is then empty
 
 
-_DECODERS = {kind: msgspec.msgpack.Decoder(data_type) for kind, data_type in DATA_TYPES.items()}
+# Any: each kind decodes to its own struct (DATA_TYPES), which the kind, not the type, tells apart.
+_DECODERS: dict[RecordKind, msgspec.msgpack.Decoder[Any]] = {
+    kind: msgspec.msgpack.Decoder(data_type) for kind, data_type in DATA_TYPES.items()}
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -120,7 +133,8 @@ class Run:
 
     def events(self, kinds: Iterable[RecordKind | str] | None = None, since: float | None = None,
                until: float | None = None, key: str | None = None) -> Iterator[Record]:
-        where, parameters = [], []
+        where: list[str] = []
+        parameters: list[str | float] = []
         states = kinds is None
         if kinds is not None:
             chosen = {RecordKind(k) for k in kinds}

@@ -46,7 +46,7 @@ def open_file(path: Path, meta: RunMeta) -> sqlite3.Connection:
         connection.execute("PRAGMA journal_mode=WAL")  # readers (timeline, runs) see committed batches
         connection.execute("PRAGMA synchronous=NORMAL")
         connection.executescript(DDL)
-        connection.isolation_level = ""  # `with connection` opens and commits a transaction
+        connection.isolation_level = "DEFERRED"  # `with connection` opens and commits a transaction
         with connection:
             write_meta(connection, meta)
     except sqlite3.Error:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 from common.model import Model, Value
 from common.model.compiled import CompiledModel
+from common.wire.ctl import Event
 from controller.recording.reader import Run
 from controller.recording.schema import (
     CommandRecord,
@@ -92,6 +93,10 @@ class _Ability:
     finished: Callable[[Sequence[Value]], bool]
 
 
+def _any_of(tests: list[Callable[[Sequence[Value]], bool]]) -> Callable[[Sequence[Value]], bool]:
+    return lambda state: any(test(state) for test in tests)
+
+
 class _Abilities:
     """Each resource's abilities as predicates over a state, and the spans they open and close."""
 
@@ -108,7 +113,7 @@ class _Abilities:
                 tests = [self.compiled.predicate(p) for p in active]
                 self.by_resource.setdefault(resource.name, []).append(_Ability(
                     ability.name.split(".", 1)[1],
-                    lambda s, tests=tests: any(test(s) for test in tests),  # type: ignore[misc]
+                    _any_of(tests),
                     self.compiled.predicate(finished)))
         self.open: dict[tuple[str, str], float] = {}
         self.spans: list[Span] = []
@@ -178,9 +183,9 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
             _answered(timeline, plan_markers.get(record.key), data)
         elif isinstance(data, WatchdogRecord):
             _health(timeline, unhealthy_open, record.key, data, t)
-        elif getattr(data, "fault", False):
+        elif isinstance(data, Event) and data.fault:
             lane = getattr(data, "resource", "") or getattr(data, "hub", "")
-            timeline.faults.append(Marker(t, "fault", data.text, lane))  # type: ignore[union-attr]
+            timeline.faults.append(Marker(t, "fault", data.text, lane))
     for name, (state, began) in operation_open.items():
         timeline.operation_spans.append(Span(name, state, began, end, state))
     for resource, (began, reason) in unhealthy_open.items():

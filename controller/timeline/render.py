@@ -15,6 +15,7 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
@@ -90,30 +91,30 @@ def figure(timeline: Timeline) -> tuple[Figure, Drawn]:
     return fig, Drawn(round(fig.bbox.width), round(height_px), bands, x0, x1 - x0)
 
 
-def _lanes(ax: object, timeline: Timeline, row: dict[str, int]) -> None:
+def _lanes(ax: Axes, timeline: Timeline, row: dict[str, int]) -> None:
     for period in timeline.unhealthy:
         if period.lane in row:
-            ax.broken_barh([(period.start, period.end - period.start)], (row[period.lane] - 0.5, 1.0),  # type: ignore[attr-defined]
+            ax.broken_barh([(period.start, period.end - period.start)], (row[period.lane] - 0.5, 1.0),
                            facecolors=UNHEALTHY_COLOR, alpha=0.25, hatch="///", edgecolor=UNHEALTHY_COLOR, zorder=1)
     wide = timeline.end * LABEL_WIDTH
     for span in timeline.abilities:
-        ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - ABILITY_BAR, 2 * ABILITY_BAR),  # type: ignore[attr-defined]
+        ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - ABILITY_BAR, 2 * ABILITY_BAR),
                        facecolors=ABILITY_COLORS.get(span.outcome, "#888888"), edgecolor="white", linewidth=0.4,
                        zorder=2)
         if span.end - span.start >= wide:
-            ax.text(span.start + (span.end - span.start) / 2, row[span.lane], span.label, ha="center",  # type: ignore[attr-defined]
+            ax.text(span.start + (span.end - span.start) / 2, row[span.lane], span.label, ha="center",
                     va="center", fontsize=5, color="white", clip_on=True, zorder=3)
     for span in timeline.operation_spans:
         if span.lane in row:
-            ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - BAR, 2 * BAR),  # type: ignore[attr-defined]
+            ax.broken_barh([(span.start, max(span.end - span.start, 0.0))], (row[span.lane] - BAR, 2 * BAR),
                            facecolors=OPERATION_COLORS.get(span.outcome, "#888888"), zorder=2)
 
 
-def _plans(ax: object, timeline: Timeline, lanes: int) -> None:
+def _plans(ax: Axes, timeline: Timeline, lanes: int) -> None:
     for number, marker in enumerate(timeline.plans, start=1):
         color = "#333333" if marker.kind == "plan" else REPLAN_COLOR
-        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)  # type: ignore[attr-defined]
-        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",  # type: ignore[attr-defined]
+        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)
+        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",
                     ha="center", va="bottom", fontsize=6, color=color, annotation_clip=False)
 
 

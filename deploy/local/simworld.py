@@ -46,6 +46,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from common.bus.protocol import Bus
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import DeviceConfig, StationConfig, load_station
@@ -313,7 +315,7 @@ class SimWorld:
             if robot not in robots:
                 continue
             poses = {name: tuple(pose["q"]) for name, pose in self.overrides[str(robot)]["poses"].items()}
-            dock_poses = self.model.resource_by_name[changer].parameters["dock_poses"]
+            dock_poses = msgspec.convert(self.model.resource_by_name[changer].parameters["dock_poses"], dict[str, str])
             slots = {TOOLS.index(tool) + 1: poses[pose] for tool, pose in dock_poses.items()}
             tolerance = float(self.devices[str(robot)].params.get("joint_tolerance", 0.01))
             flange = cell.FlangeCoupling(cell.RobotLink(self.server_of[str(robot)].address, COMMAND_PORT),
@@ -340,10 +342,12 @@ class SimWorld:
         if not cameras and not docks:
             return
         walker = cell.Walker(self.overrides[cameras[0]]["zones"], speed=1.4 * self.speed) if cameras else None
-        task_zones = dict(self.model.resource_by_name[cameras[0]].parameters["task_zones"]) if cameras else {}
+        task_zones = (msgspec.convert(self.model.resource_by_name[cameras[0]].parameters["task_zones"], dict[str, str])
+                      if cameras else {})
         handheld: dict[str, list[str]] = {}
         for dock in docks:
-            for tool, tasks in self.model.resource_by_name[dock].parameters.get("handheld_tasks", {}).items():
+            parameters = self.model.resource_by_name[dock].parameters
+            for tool, tasks in msgspec.convert(parameters.get("handheld_tasks", {}), dict[str, list[str]]).items():
                 handheld.setdefault(tool, []).extend(tasks)
         coupling = cell.OperatorCoupling(
             self._bus, keys, Codec(self.model.resource_by_name[operator]), task_zones, walker,

@@ -54,7 +54,7 @@ def load_state(path: str | Path, model: Model) -> dict[str, Value]:
         if value not in var.domain:
             problems.append(f"{where}: {value!r} is outside the domain of {key} ({var.domain.describe()})")
             continue
-        values[key] = value  # type: ignore[assignment]
+        values[key] = value  # type: ignore[assignment]  # checked against the domain above
     if problems:
         raise StateFileError("\n".join(problems))
     return values

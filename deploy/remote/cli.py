@@ -173,7 +173,7 @@ def _target_options(p: argparse.ArgumentParser) -> None:
                       help="zenoh endpoints to connect to (default: the hub's, from hubs.toml)")
 
 
-def register_deploy_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_deploy_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add `config check`, `units`, `deploy` and `rollback` to hubctl."""
     config = sub.add_parser("config", help="check hubs.toml")
     config_sub = config.add_subparsers(dest="config_command", required=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import posixpath
 import shlex
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from .layout import Layout
@@ -112,7 +113,7 @@ echo "created $REL/venv"
 
 
 def install(layout: Layout, release: str, stage: str, wheel: str, *, offline_deps: bool,
-            metadata: dict[str, object]) -> str:
+            metadata: Mapping[str, object]) -> str:
     rel = q(layout.release(release))
     # offline: the dependencies come from the interpreter's own site-packages (the venv sees them).
     pip_flags = " --no-deps --no-index" if offline_deps else ""

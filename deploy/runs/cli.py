@@ -85,7 +85,7 @@ def cmd_runs(args: argparse.Namespace) -> int:
     return 0
 
 
-def register_run_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_run_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     timeline = sub.add_parser("timeline", help="draw a recorded run as a Gantt chart (HTML, SVG or PNG)")
     timeline.add_argument("run", metavar="RUN", nargs="?",
                           help="a recording (default: the newest in the station's recording dir)")

@@ -34,7 +34,7 @@ def _report(command: Callable[[], list[str]]) -> int:
     return 0
 
 
-def register_scaffold_commands(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_scaffold_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add `new-station` and `new-device` to hubctl's subcommands (deploy/cli.py build_parser)."""
     station = sub.add_parser("new-station", help="make a station project (a Python package: model, hubs.toml, tests) "
                                                  "that runs as it is, every device emulated")

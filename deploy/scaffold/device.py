@@ -89,8 +89,9 @@ def load_project(root: Path) -> Station:
 def _values(variable: Variable) -> str:
     """The domain as Python source, in the quotes ruff's format writes."""
     values = variable.domain.values
-    if len(values) > MAX_LISTED_VALUES and all(isinstance(v, int) for v in values):
-        return f"tuple(range({values[0]}, {values[-1] + 1}))"
+    integers = [v for v in values if isinstance(v, int)]
+    if len(values) > MAX_LISTED_VALUES and len(integers) == len(values):
+        return f"tuple(range({integers[0]}, {integers[-1] + 1}))"
     items = [f'"{v}"' if isinstance(v, str) else repr(v) for v in values]
     return f"({items[0]},)" if len(items) == 1 else f"({', '.join(items)})"
 
@@ -241,16 +242,16 @@ def _add_to_hubs_toml(station: Station, resources: list[Resource], changes: Chan
         text = add_to_table(text, ("hubs", hub.name, "devices", resource.name), DRIVER_PARAMS, path)
         changes.edit(path, text, f"the driver's parameters for {resource.name} (hub {hub.name})")
     if unserved:
-        hub = resources[0].device_type
-        while hub in station.config.hubs:
-            hub += "_hub"
-        machine = f"{hub.replace('_', '-')}-ecu.local"  # a host name has no underscores
+        new_hub = resources[0].device_type
+        while new_hub in station.config.hubs:
+            new_hub += "_hub"
+        machine = f"{new_hub.replace('_', '-')}-ecu.local"  # a host name has no underscores
         host = f'host = "{machine}"'.ljust(COMMENT_COLUMN) + "# TODO: the machine this hub runs on"
-        text = text.rstrip("\n") + f"\n\n[hubs.{toml_key((hub,))}]\n{host}\n"
+        text = text.rstrip("\n") + f"\n\n[hubs.{toml_key((new_hub,))}]\n{host}\n"
         for resource in unserved:
-            text += f"\n[{toml_key(('hubs', hub, 'devices', resource.name))}]\n"
+            text += f"\n[{toml_key(('hubs', new_hub, 'devices', resource.name))}]\n"
             text += "".join(f"{line}\n" for line in _device_lines(resource.device_type))
-        changes.edit(path, text, f"hub {hub} serving {', '.join(r.name for r in unserved)}")
+        changes.edit(path, text, f"hub {new_hub} serving {', '.join(r.name for r in unserved)}")
     try:
         check_against_model(load_config(path), station.model)
     except ConfigError as exc:

@@ -44,6 +44,7 @@ from common.model import (
     Predicate,
     Resource,
     Specification,
+    Value,
     ability,
     all_of,
     any_of,
@@ -303,7 +304,7 @@ def _tracking() -> tuple[Ability, ...]:
     return tuple(abilities)
 
 
-def _stage_in(k: int, *stages: str) -> Predicate:
+def _stage_in(k: int, *stages: Value) -> Predicate:
     return any_of(*(f"{part(k)} == {s}" for s in stages))
 
 

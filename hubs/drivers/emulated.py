@@ -52,13 +52,13 @@ class EmulatedDriver(Driver, Inputs, Observes):
             model, [resource], speed=speed, seed=seed,
             failure={resource: failure_probability}, delays={resource: delay} if delay is not None else None,
         )
-        self.values: dict[str, Value] = {v.path: v.initial for v in spec.variables}  # type: ignore[misc]
+        self.values: dict[str, Value] = {v.path: v.initial for v in spec.variables}
         self.measured = tuple(v.path for v in spec.measured)
         self.commands = tuple(v.path for v in spec.commands)
         own = set(self.values)
         self._inputs = frozenset(p for p in self.emulator.paths if p not in own)
         for path in self._inputs:
-            self.values[path] = model.var(path).initial  # type: ignore[assignment]
+            self.values[path] = model.var(path).initial
         self._reads_inputs = {t.name: t.guard.paths() & self._inputs for t in self.emulator.effects
                               if t.guard.paths() & self._inputs}
         self._published: dict[str, float] = {}  # input path -> when its latest value was published

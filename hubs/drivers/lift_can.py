@@ -203,10 +203,10 @@ class LiftCan(LinkedDriver[ReconnectLogic]):
             seq = self._send_command(command)
             deadline = time.monotonic() + max(0.5, 10 * self.status_timeout)
             while time.monotonic() < deadline:
-                status = self._status
-                if status is not None and self._echoes_since(status, seq):
+                latest = self._status
+                if latest is not None and self._echoes_since(latest, seq):
                     report.add("outputs read back", True,
-                               f"command {status.echo_command} (seq {status.echo_seq}) echoed")
+                               f"command {latest.echo_command} (seq {latest.echo_seq}) echoed")
                     break
                 await asyncio.sleep(0.01)
             else:

@@ -103,7 +103,7 @@ def default_bus_factory(bus_number: int) -> BusFactory:
     def factory() -> I2CBus:
         import smbus2
 
-        return smbus2.SMBus(bus_number)  # type: ignore[return-value]
+        return smbus2.SMBus(bus_number)
 
     return factory
 

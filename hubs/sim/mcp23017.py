@@ -39,7 +39,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 
@@ -298,6 +298,9 @@ class NutrunnerStation:
                 file.write(f"{time.time():.6f} {int(bool(level))}\n")
 
 
+Result = TypeVar("Result")  # what a transfer returns
+
+
 class SimI2CBus:
     """An I2C bus segment with simulated devices; thread-safe (the driver calls from a worker thread)."""
 
@@ -335,7 +338,7 @@ class SimI2CBus:
         device.tick()
         return device
 
-    def transfer(self, address: int, fn: Callable[[Mcp23017Sim], object]) -> object:
+    def transfer(self, address: int, fn: Callable[[Mcp23017Sim], Result]) -> Result:
         with self.lock:
             device = self._device(address)
             result = fn(device.chip)
@@ -356,7 +359,7 @@ class SimBusHandle:
         return self._bus
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
-        return int(self._check().transfer(i2c_addr, lambda chip: chip.read_block(register, 1)[0]))  # type: ignore[arg-type]
+        return self._check().transfer(i2c_addr, lambda chip: chip.read_block(register, 1)[0])
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._check().transfer(i2c_addr, lambda chip: chip.write_block(register, [value]))
@@ -364,8 +367,7 @@ class SimBusHandle:
     def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: bool | None = None) -> list[int]:
         if not 0 < length <= 32:
             raise ValueError("Desired block length over 32 bytes")
-        result = self._check().transfer(i2c_addr, lambda chip: chip.read_block(register, length))
-        return list(result)  # type: ignore[call-overload]
+        return self._check().transfer(i2c_addr, lambda chip: chip.read_block(register, length))
 
     def write_i2c_block_data(
         self, i2c_addr: int, register: int, data: Sequence[int], force: bool | None = None
@@ -390,14 +392,15 @@ def sim_bus(number: int) -> SimI2CBus:
         return _BUSES.setdefault(number, SimI2CBus())
 
 
-def ensure_nutrunner(bus_number: int, address: int, **kwargs: object) -> NutrunnerStation:
-    """The nutrunner station at ``address`` on the simulated bus, created with ``kwargs`` if absent."""
+def ensure_nutrunner(bus_number: int, address: int,
+                     build: Callable[[], NutrunnerStation] = NutrunnerStation) -> NutrunnerStation:
+    """The nutrunner station at ``address`` on the simulated bus, made by ``build`` if absent."""
     bus = sim_bus(bus_number)
     with bus.lock:
         existing = bus.devices.get(address)
     if existing is not None:
         return existing
-    return bus.add(address, NutrunnerStation(**kwargs))  # type: ignore[arg-type]
+    return bus.add(address, build())
 
 
 # --- as a simulator plugin (device type nutrunner): inside the hub, there is no /dev/i2c here ------
@@ -414,9 +417,10 @@ class NutrunnerSimParams(driver.NutrunnerParams, frozen=True, kw_only=True):
 
 
 def _build(resource: str, params: NutrunnerSimParams) -> Driver:
-    ensure_nutrunner(params.bus, params.address, wiring=Wiring(**dataclasses.asdict(params.pins())),
-                     timing=NutrunnerTiming(params.sim_spinup, params.sim_tighten, params.sim_reset),
-                     fail_probability=params.sim_fail_probability, seed=params.sim_seed, trace=params.sim_trace)
+    ensure_nutrunner(params.bus, params.address, lambda: NutrunnerStation(
+        wiring=Wiring(**dataclasses.asdict(params.pins())),
+        timing=NutrunnerTiming(params.sim_spinup, params.sim_tighten, params.sim_reset),
+        fail_probability=params.sim_fail_probability, seed=params.sim_seed, trace=params.sim_trace))
     return driver.build(resource, params, bus_factory=sim_bus(params.bus).open)
 
 

@@ -248,9 +248,8 @@ class MirServer:
         site = web.TCPSite(runner, self.host, self.port, reuse_address=True)
         await site.start()
         self._runner = runner
-        server = site._server
-        if self.port == 0 and server is not None:
-            self.port = server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        if self.port == 0:
+            self.port = runner.addresses[0][1]  # (host, port) of the socket it listens on
         return self.port
 
     async def stop(self) -> None:

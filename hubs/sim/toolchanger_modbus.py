@@ -111,7 +111,7 @@ class ToolChangerPhysics:
     @classmethod
     def holding(cls, tool: str, **kwargs: object) -> ToolChangerPhysics:
         """Start with ``tool`` coupled and locked, away from the dock."""
-        sim = cls(**kwargs)  # type: ignore[arg-type]
+        sim = cls(**kwargs)  # type: ignore[arg-type]  # the constructor checks the keywords
         sim.attached, sim.piston = tool, 1.0
         sim.in_dock[tool] = False
         sim.coils[COIL_LOCK] = True
@@ -263,7 +263,9 @@ class ToolChangerServer:
         server = ModbusTcpServer(self._device(), address=(self.host, self.port))
         await server.serve_forever(background=True)
         self._server = server
-        self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+        listener = server.transport
+        assert isinstance(listener, asyncio.Server)  # what pymodbus keeps as a TCP server's transport
+        self.port = listener.sockets[0].getsockname()[1]
         return self.port
 
     async def stop(self) -> None:

@@ -88,6 +88,7 @@ class CannedFeed:
         for i in rnd.sample(range(len(operations)), 3):
             operations[i] = msgspec.structs.replace(operations[i], state=rnd.choice(MOVING),
                                                     since=round_ * 0.3)
+        assert status.plan is not None  # the canned status has a plan
         plan = msgspec.structs.replace(status.plan, done=done_mask(range(round_ % PLAN_STEPS), PLAN_STEPS))
         self.status = msgspec.structs.replace(status, health=health, operations=operations, plan=plan,
                                               uptime=round_ * 0.3, time=time.time())

@@ -8,6 +8,7 @@ from __future__ import annotations
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -19,7 +20,7 @@ from controller.planner import Plan
 from controller.stack import build_controller_stack
 
 
-def timed(fn, rounds: int) -> list[float]:  # type: ignore[no-untyped-def]
+def timed(fn: Callable[[], object], rounds: int) -> list[float]:
     samples = []
     for _ in range(rounds):
         began = time.perf_counter()

@@ -30,12 +30,10 @@ import msgspec
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_seeds import seeds_of  # noqa: E402
 
 from controller.recording.schema import PlanRecord  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
+from tests.bench.bench_seeds import seeds_of  # noqa: E402
 
 RUN_LIMIT_S = 300.0
 SUMMARY = re.compile(r"^(finished|stopped|stuck).*$", re.MULTILINE)

@@ -30,7 +30,7 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -260,7 +260,7 @@ def synthetic_cases(sizes: list[int]) -> list[Case]:
 
 # --- 2. goal sets asked during runs ----------------------------------------------------------------
 def bench_runs(runs: int) -> None:
-    from controller.planner.relaxed import RelaxedPlan
+    from controller.planner.relaxed import Estimate, RelaxedPlan
     from deploy.local.inprocess import run_in_process
 
     firsts: list[float] = []
@@ -268,16 +268,16 @@ def bench_runs(runs: int) -> None:
     first_minimal = shown_minimal = requests = evaluations = 0
     original, evaluate = Planner.plan_anytime, RelaxedPlan.evaluate
 
-    def counting(self: RelaxedPlan, state: State):  # type: ignore[no-untyped-def]
+    def counting(self: RelaxedPlan, state: State) -> Estimate:
         nonlocal evaluations
         evaluations += 1
         return evaluate(self, state)
 
     def recording(self: Planner, start: State, goals: Mapping[str, Predicate], disabled: frozenset[str] = frozenset(),
-                  budget: Budget | None = None):  # type: ignore[no-untyped-def]
+                  budget: Budget | None = None) -> Iterator[Plan | NoPlan]:
         nonlocal first_minimal, shown_minimal, requests
         began, evaluated = time.process_time(), evaluations
-        answers = []
+        answers: list[Plan | NoPlan] = []
         for answer in original(self, start, goals, disabled, budget):
             if not answers:
                 firsts.append(time.process_time() - began)
@@ -290,8 +290,8 @@ def bench_runs(runs: int) -> None:
             if isinstance(answers[0], Plan) and len(answers[0].steps) == len(answers[-1].steps):
                 first_minimal += 1
 
-    Planner.plan_anytime = recording  # type: ignore[method-assign]
-    RelaxedPlan.evaluate = counting  # type: ignore[method-assign]
+    Planner.plan_anytime = recording  # type: ignore[method-assign]  # counting, restored below
+    RelaxedPlan.evaluate = counting  # type: ignore[method-assign]  # counting, restored below
     # A* may improve each first plan here (in-process runs keep the first by default), to count how
     # often the first plan was already a shortest one.
     budget = replace(VIRTUAL_BUDGET, improve_expansions=20_000)
@@ -305,8 +305,8 @@ def bench_runs(runs: int) -> None:
                   f"{summary.operations_finished}/{summary.operations_total}, {summary.plans} plans, "
                   f"wall {summary.wall_seconds:.1f} s", file=sys.stderr)
     finally:
-        Planner.plan_anytime = original  # type: ignore[method-assign]
-        RelaxedPlan.evaluate = evaluate  # type: ignore[method-assign]
+        Planner.plan_anytime = original  # type: ignore[method-assign]  # restored
+        RelaxedPlan.evaluate = evaluate  # type: ignore[method-assign]  # restored
     firsts.sort()
     worst = max(heaviest)
     p99 = firsts[min(len(firsts) - 1, int(len(firsts) * 0.99))]

@@ -35,9 +35,6 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
-sys.path.insert(0, str(HERE))
-
-from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
 
 from common.bus.memory_bus import MemoryBus, MemoryHub  # noqa: E402
 from common.bus.protocol import Sample  # noqa: E402
@@ -46,6 +43,7 @@ from common.wire.messages import Codec, HubStatus  # noqa: E402
 from controller.recording.schema import RunMeta  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
+from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
 
 BATCH = 50
 BLOCK = 100  # batches between attaching and detaching the recording (interleaved)
@@ -179,7 +177,7 @@ def measure(resources: int, seconds: float, rounds: int) -> tuple[Figures, dict[
         for round_ in range(rounds):
             for load in ("steady", "changing"):
                 for what in ("off", "on") if round_ % 2 == 0 else ("on", "off"):
-                    results.setdefault((load, what == "on"), []).append(tuple(run(what, load)))  # type: ignore[arg-type]
+                    results.setdefault((load, what == "on"), []).append(tuple(run(what, load)))  # type: ignore[arg-type]  # a pair of floats
                 mixed.setdefault(load, []).append(run("interleaved", load)[0])
         sizes = sorted(p.stat().st_size for p in (Path(tmp) / "runs").glob("*.sqlite"))
     print(f"    recordings written: {len(sizes)}, {sizes[0] / 1024:,.0f} to {sizes[-1] / 1024:,.0f} kB "
@@ -238,7 +236,8 @@ def main() -> None:
     parser.add_argument("--dir", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:  # a measurement of measure()'s, in a process of its own
-        print(json.dumps(one(*args.one, args.resources, args.states, args.dir)))
+        what, load = args.one
+        print(json.dumps(one(what, load, args.resources, args.states, args.dir)))
         return
     report(args.resources, args.seconds, args.rounds, 0.05)
 

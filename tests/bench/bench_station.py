@@ -49,9 +49,6 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(HERE))
-
-from bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
 from common.bus.zenoh_bus import ZenohBus  # noqa: E402
 from common.bus.zenoh_config import zenoh_config  # noqa: E402
@@ -59,6 +56,7 @@ from common.plumbing.lifecycle import free_port  # noqa: E402
 from common.wire.holder_token import declare_holder  # noqa: E402
 from common.wire.keys import station_keys  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
+from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
 TICK_MEDIAN_LIMIT_MS = 5.0
 AGE_LIMIT_MS = 3 * 1000.0 / HUB_RATE_HZ
@@ -374,7 +372,7 @@ def recording_cost(directory: Path, rounds: int, warmup: float, window: float) -
         print(f"    recording size: about {per_s / 1024:,.0f} kB per second of run (states are recorded when they "
               f"change; the load generators' values hardly do)")
     print("(e) the same in one process, states handed to the controller's ingestion (bench_recording.py):", flush=True)
-    import bench_recording
+    from tests.bench import bench_recording
 
     bench_recording.report(RECORDING_RESOURCES, window, rounds, RECORDING_COST_LIMIT)
 
@@ -394,7 +392,7 @@ def main() -> None:
             recording_cost(Path(tmp), args.rounds, *((1.0, 2.0) if args.quick else (2.0, 5.0)))
         return
 
-    import bench_bus
+    from tests.bench import bench_bus
 
     started = time.perf_counter()
     quick = args.quick

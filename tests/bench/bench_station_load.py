@@ -94,7 +94,11 @@ def generator(endpoint: str, station: str, hub: str, resources: int, served: ran
     decoded_from: list[bytes | None] = [None] * count
     encode = msgspec.msgpack.Encoder().encode
     stopped = threading.Event()
-    threading.Thread(target=lambda: (sys.stdin.read(), stopped.set()), daemon=True).start()
+    def stop_at_end_of_input() -> None:
+        sys.stdin.read()
+        stopped.set()
+
+    threading.Thread(target=stop_at_end_of_input, daemon=True).start()
     period = 1.0 / rate_hz
     slots = 10  # publish a tenth of the resources every tenth of the period
     per_slot = -(-count // slots)

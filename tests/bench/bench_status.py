@@ -112,7 +112,7 @@ def main() -> int:
                 print("hubctl up printed no port")
                 return 1
             lines: list[str] = []  # drained meanwhile: a full pipe would stop `hubctl up`
-            drain = threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True)  # type: ignore[arg-type]
+            drain = threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True)  # type: ignore[arg-type]  # stdout is piped
             drain.start()
             asyncio.run(measure(station, f"tcp/127.0.0.1:{port}", args.time_limit, not args.no_plans))
             up.wait(60)

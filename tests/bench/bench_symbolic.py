@@ -19,9 +19,6 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_planner import ms, reference_cases, table
 
 from common.model import Predicate, all_of
 from common.model.compiled import CompiledModel, State
@@ -31,6 +28,7 @@ from controller.planner.steps import RaceCheck, stable_goal
 from controller.planner.symbolic import SymbolicPlanner
 from controller.planner.symbolic_encoding import BACKEND
 from controller.planner.validate import check_plan, plan_from_moves
+from tests.bench.bench_planner import ms, reference_cases, table
 from tests.stations import synthetic
 
 

@@ -6,9 +6,9 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
-from drvtest import Connect, Serve, Server, reconnect_logic
 
 from hubs.drivers.reconnect import LinkedDriver
+from tests.drivers.drvtest import Connect, Serve, Server, reconnect_logic
 
 
 @pytest.fixture

@@ -24,7 +24,7 @@ D = TypeVar("D", bound=LinkedDriver[Any])
 class Server(Protocol):
     """A simulator serving in this process (the MiR REST server, the Modbus coupler, the camera tracker)."""
 
-    async def start(self) -> None: ...
+    async def start(self) -> object: ...  # some return the port they listen on
 
     async def stop(self) -> None: ...
 

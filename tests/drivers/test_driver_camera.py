@@ -6,13 +6,13 @@ import time
 from pathlib import Path
 
 import pytest
-from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.camera_tracker import CameraTracker, parse_frame, parse_rects, zone_of
 from hubs.drivers.reconnect import Backoff
 from hubs.factory import make_driver
 from hubs.sim.camera_tracker import CameraTrackerSim
+from tests.drivers.drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)

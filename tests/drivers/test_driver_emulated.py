@@ -7,11 +7,11 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 
 import pytest
-from drvtest import read_until
 
 from common.model import Value
 from common.stations.engine_assembly import build_model
 from hubs.drivers.emulated import EmulatedDriver
+from tests.drivers.drvtest import read_until
 
 MODEL = build_model()
 FAST = 1000.0  # effects take 0.15 ms: any lag of the robot's news would be taken as news

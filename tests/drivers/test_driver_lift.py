@@ -9,13 +9,13 @@ from collections.abc import Iterator
 
 import can
 import pytest
-from drvtest import Connect, eventually, read_until
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.lift_can import LiftCan
 from hubs.drivers.reconnect import Backoff
 from hubs.factory import make_driver
 from hubs.sim.lift_can import LiftSim
+from tests.drivers.drvtest import Connect, eventually, read_until
 
 FAST = Backoff(initial=0.02, maximum=0.2)
 _channels = itertools.count()
@@ -40,7 +40,7 @@ def make(channel: str, **kwargs: float) -> LiftCan:
         bus_factory=lambda: can.Bus(interface="virtual", channel=channel),
         where=f"virtual:{channel}",
         backoff=FAST,
-        **kwargs,  # type: ignore[arg-type]
+        **kwargs,  # type: ignore[arg-type]  # each test passes its keywords
     )
 
 

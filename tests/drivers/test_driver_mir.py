@@ -9,7 +9,6 @@ from typing import Any
 
 import httpx
 import pytest
-from drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.mir_rest import MirRest
@@ -17,6 +16,7 @@ from hubs.drivers.reconnect import Backoff
 from hubs.factory import make_driver
 from hubs.sim import mir_rest as sim
 from hubs.sim.mir_rest import MirRobot, MirServer
+from tests.drivers.drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)
@@ -61,7 +61,11 @@ async def test_drive_to_station_and_back(driver: MirRest, mir: MirServer) -> Non
 async def test_goto_none_stops_and_resume(driver: MirRest, mir: MirServer) -> None:
     mir.robot.speed = 2.0
     await driver.write({"goto_c": "station"})
-    await eventually(lambda: mir.robot.update() or mir.robot.x > 3.0)  # well away from the kitting area
+    def well_away_from_the_kitting_area() -> bool:
+        mir.robot.update()
+        return mir.robot.x > 3.0
+
+    await eventually(well_away_from_the_kitting_area)
     assert await driver.enter_safe_state() == {"goto_c": "none"}
     await eventually(lambda: mir.robot.state_id == sim.PAUSE)
     x = mir.robot.x
@@ -134,7 +138,9 @@ async def test_the_selftest_never_pauses_a_mission_a_command_posts_meanwhile(ser
     with a command that posts a mission (seen in sim mode: at_kitting, moving, at_kitting, moving)."""
     PauseRecordingRobot.missions_paused = 0
     mir = await serve(MirServer(PauseRecordingRobot(speed=2.0)))
-    driver = await connect(make_driver("mir", "mir", "sim", params(mir.port)))
+    built = make_driver("mir", "mir", "sim", params(mir.port))
+    assert isinstance(built, MirRest)
+    driver = await connect(built)
     report, _ = await asyncio.gather(driver.selftest(), driver.write({"goto_c": "station"}))
     assert report.ok, report
     await read_until(driver, pos_m="moving")
@@ -191,7 +197,7 @@ async def test_simulator_as_a_process() -> None:
         drv = make_driver("mir", "mir", "sim", params(int(line.rsplit(":", 1)[1])))
         await drv.connect()
         try:
-            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]
+            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]  # the driver's link
             await drv.write({"goto_c": "station"})
             await read_until(drv, pos_m="at_station")
             proc.kill()

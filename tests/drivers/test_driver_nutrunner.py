@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from drvtest import Connect, eventually, read_until
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.nutrunner_mcp23017 import NutrunnerMcp23017, Pins
@@ -13,6 +12,7 @@ from hubs.drivers.reconnect import Backoff
 from hubs.factory import make_driver
 from hubs.sim import mcp23017 as sim
 from hubs.sim.mcp23017 import NutrunnerStation, SimI2CBus
+from tests.drivers.drvtest import Connect, eventually, read_until
 
 FAST = Backoff(initial=0.01, maximum=0.1)
 

@@ -137,7 +137,7 @@ def test_an_installed_plugin_is_found_and_builds_its_driver(installed: Path) -> 
     assert {"gripper", "feeder", "nutrunner", "ur"} <= set(driver_types())
     driver = make_driver("grip", "gripper", "real", {"host": "10.0.0.2", "grip_force": 5})
     assert type(driver).__name__ == "Gripper" and driver.resource == "grip"
-    assert driver.params.host == "10.0.0.2" and driver.params.grip_force == 5.0  # type: ignore[attr-defined]
+    assert driver.params.host == "10.0.0.2" and driver.params.grip_force == 5.0  # type: ignore[attr-defined]  # the plugin's own Params
     assert "gripper" in simulator_types() and find_simulator("feeder") is None
 
 
@@ -199,7 +199,7 @@ async def test_the_sim_world_starts_a_plugin_simulator_without_knowing_its_type(
         params = json.loads(world.params_files["cell"].read_text())
         assert params == {"grip": {"host": "127.0.0.1", "port": 4999, "grip_force": 1.0}}
         driver = make_driver("grip", "gripper", "sim", {"host": "192.168.0.7", **params["grip"]})
-        assert driver.params.host == "127.0.0.1"  # type: ignore[attr-defined]
+        assert driver.params.host == "127.0.0.1"  # type: ignore[attr-defined]  # the plugin's own Params
     assert not world.processes["gripper-grip"].running
 
 

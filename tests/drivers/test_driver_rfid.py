@@ -7,13 +7,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from drvtest import Connect, eventually, read_until, simulator_process
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.reconnect import Backoff
 from hubs.drivers.rfid_serial import RfidSerial, parse_body
 from hubs.factory import make_driver
 from hubs.sim.rfid_serial import RfidReaderSim, frame
+from tests.drivers.drvtest import Connect, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)
@@ -118,7 +118,7 @@ async def test_simulator_as_a_process(tmp_path: Path) -> None:
         drv = make_driver("rfid", "rfid", "sim", {"serial_port": str(link), "operators": [ALICE]})
         await drv.connect()
         try:
-            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]
+            assert await drv.link.wait_connected(5)  # type: ignore[attr-defined]  # the driver's link
             proc.stdin.write(ALICE + "\n")
             proc.stdin.flush()
             await read_until(drv, verified_m=True)

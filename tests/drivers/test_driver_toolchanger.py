@@ -6,7 +6,6 @@ import asyncio
 from pathlib import Path
 
 import pytest
-from drvtest import Connect, Serve, eventually, read_until, simulator_process
 from pymodbus.client import AsyncModbusTcpClient
 
 from hubs.drivers.base import DeviceUnavailable
@@ -15,6 +14,7 @@ from hubs.drivers.reconnect import Backoff
 from hubs.drivers.rsp_modbus import RspModbus
 from hubs.factory import make_driver
 from hubs.sim.toolchanger_modbus import ToolChangerPhysics, ToolChangerServer
+from tests.drivers.drvtest import Connect, Serve, eventually, read_until, simulator_process
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = Backoff(initial=0.02, maximum=0.2)

@@ -9,12 +9,12 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from drvtest import Connect, eventually, read_until
-from ur_fake import HOME, POSES, FakeUr, ur_params
 
 from hubs.drivers.base import DeviceUnavailable
 from hubs.drivers.ur_rtde import Pose, UrRtde, rotation_between
 from hubs.factory import make_driver
+from tests.drivers.drvtest import Connect, eventually, read_until
+from tests.drivers.ur_fake import HOME, POSES, FakeUr, ur_params
 
 # A loopback address per fake (RTDE and dashboard ports are fixed); the second octet keeps concurrent
 # test runs on one machine apart.

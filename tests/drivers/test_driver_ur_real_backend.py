@@ -16,11 +16,11 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import pytest
-from drvtest import Connect, eventually, read_until
-from ur_fake import HOME, FakeUr, ur_params
 
 from hubs.drivers.ur_rtde import UrRtde
 from hubs.factory import make_driver
+from tests.drivers.drvtest import Connect, eventually, read_until
+from tests.drivers.ur_fake import HOME, FakeUr, ur_params
 
 
 def _receive_probe(conn: Connection, host: str) -> None:

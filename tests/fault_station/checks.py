@@ -88,7 +88,7 @@ def assert_station_done_each_bolt_once(station: Station) -> None:
     for name in OPERATIONS:
         assert persisted[f"op.{name}"] == OperationState.FINISHED
     assert not station.dead(), f"processes exited: {station.dead()}"
-    loop = watch.status().loop  # the controller measures its own loop (tests/bench/bench_station.py reads it)
+    loop = watch.current_status().loop  # the controller measures its own loop (tests/bench/bench_station.py reads it)
     assert loop is not None and loop.ticks > 0 and loop.states > 0 and loop.tick_ms_median > 0
 
 

@@ -267,7 +267,7 @@ class Station:
                 if p.popen is not None and not p.stopped and p.popen.poll() is not None]
 
     # waiting
-    def wait_for(self, predicate: Callable[[], T], timeout: float, what: str, *, poll: float = 0.01,
+    def wait_for(self, predicate: Callable[[], T | None], timeout: float, what: str, *, poll: float = 0.01,
                  allow_dead: bool = False) -> T:
         """Poll `predicate` until it returns something truthy (returned); fail after `timeout` s with
         what the station was doing, or at once when a process died."""

@@ -48,11 +48,12 @@ class LazyHubRuntime(HubRuntime):
             slot.in_safe_state = False
             slot.status, slot.detail = HubStatus.OK, ""
             if self.received <= self.apply:
-                values = slot.codec.values(command)
+                # A command carries every command variable: none is unknown (None) as a measured one may be.
+                values = {name: v for name, v in slot.codec.values(command).items() if v is not None}
                 await slot.driver.write(values)
                 slot.mirror = command
                 log.info("lazy hub %s: applied command %d of %d to %s (seq %d)", self.hub, self.received,
-                         self.apply, slot.name, command.seq)  # type: ignore[attr-defined]
+                         self.apply, slot.name, command.seq)
             elif self.received == self.apply + 1:
                 log.info("lazy hub %s: from now on commands are received but not applied", self.hub)
             self._publish(slot)

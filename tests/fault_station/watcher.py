@@ -211,6 +211,12 @@ class Watcher:
         with self.lock:
             return self.record.statuses[-1].message if self.record.statuses else None
 
+    def current_status(self) -> StatusMessage:
+        """The latest status, where the test has seen one already."""
+        status = self.status()
+        assert status is not None, "no status from the controller yet"
+        return status
+
     def snapshot(self) -> dict[str, Any]:
         with self.lock:
             return dict(self.record.snapshots[-1].message.values) if self.record.snapshots else {}

@@ -50,7 +50,7 @@ class SimCell:
         self.keys = self.config.keys
         self.codecs = {r.name: Codec(r) for r in self.model.resources}
         self.commands: dict[str, dict[str, Value]] = {
-            r.name: {v.name: v.initial for v in r.commands} for r in self.model.resources}  # type: ignore[misc]
+            r.name: {v.name: v.initial for v in r.commands} for r in self.model.resources}
         self.values: dict[str, Value | None] = {}
         self.history: dict[str, list[Value | None]] = {}
         self.world: SimWorld | None = None

@@ -21,6 +21,7 @@ from common.model import (
     In,
     Model,
     Operation,
+    Predicate,
     Specification,
     all_of,
     any_of,
@@ -113,7 +114,7 @@ SEQUENCE = (
 )
 
 
-def _after(name: str) -> str | bool:
+def _after(name: str) -> Predicate | bool:
     """`op.X == finished` for every operation of the step before `name`'s."""
     step = next(i for i, names in enumerate(SEQUENCE) if name in names)
     return all_of(*(f"op.{prev} == finished" for prev in SEQUENCE[step - 1])) if step else True

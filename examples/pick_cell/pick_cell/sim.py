@@ -150,7 +150,9 @@ class EjectorServer:
         if self._server is None:
             self._server = ModbusTcpServer(self._device(), address=(self.host, self.port))
             await self._server.serve_forever(background=True)
-            self.port = self._server.transport.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+            listener = self._server.transport
+            assert isinstance(listener, asyncio.Server)  # what pymodbus keeps as a TCP server's transport
+            self.port = listener.sockets[0].getsockname()[1]
         return self.port
 
     async def stop(self) -> None:
