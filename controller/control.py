@@ -8,6 +8,7 @@ the event loop, hands the result back with `adopt()`, and publishes what changed
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.wire.ctl import (
     Event,
+    Livelock,
     NoPlanFound,
     PlanFound,
     PlanKept,
@@ -27,8 +29,11 @@ from common.wire.ctl import (
     ShorterPlan,
 )
 
-from .engine import Engine, PlanProgress, TickResult
+from .engine import Engine, LostEffect, PlanProgress, TickResult
+from .livelock import RETRIES as LIVELOCK_RETRIES
+from .livelock import LivelockWatch, Repeat
 from .planner import Budget, NoPlan, Plan, Planner
+from .planner.reuse import memory_key
 from .safety import SafetyMonitor
 
 RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
@@ -53,6 +58,7 @@ class PlanRequest:
     goals: dict[str, Predicate]
     disabled: frozenset[str]
     reason: ReplanCause = AT_START  # why a plan is due
+    reuse: bool = True  # False: the remembered plan for these goals is not handed back (controller/livelock.py)
 
 
 @dataclass
@@ -75,6 +81,7 @@ class GoalError:
     retry_at: float
     attempts: int = 1
     proven: bool = False  # shown unreachable, not merely not found within the budget
+    livelock: bool = False  # it has plans, but the devices do not follow them (controller/livelock.py)
 
 
 @dataclass
@@ -94,6 +101,8 @@ def anytime_answers(planner: Planner, request: PlanRequest,
     if not request.goals:
         yield None, None
         return
+    if not request.reuse:
+        planner.memory.forget(memory_key(request.goals, request.disabled))
     last: Plan | NoPlan | None = None
     for last in planner.plan_anytime(request.start, request.goals, request.disabled, budget):
         if isinstance(last, Plan):
@@ -165,6 +174,11 @@ class ControlCore:
         self._deliberate_names = frozenset(t.name for t in compiled.deliberate)
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
         self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
+        self.livelock = LivelockWatch()
+        self._lost: LostEffect | None = None  # why the plan just dropped failed, if an effect it needed was lost
+        self._livelock_attempts: dict[str, int] = {}  # by operation, since an operation last finished
+        self._livelocks_said: set[str] = set()  # effects diagnosed lost since an operation last finished
+        self._sent: dict[str, str] = {}  # resource -> what last set it going (PlanProgress.sent)
 
     # --- inputs -------------------------------------------------------------------------
     def request(self, *operations: str) -> None:
@@ -224,15 +238,18 @@ class ControlCore:
     def tick(self) -> TickResult:
         self._check_safety()
         paused = self.paused or self.safety.stopped
-        result = self.engine.tick(self.state, requested=() if paused else self._startable(),
-                                  progress=None if paused else self.progress, disabled=self.disabled,
-                                  blocked=self._blocked)
+        followed = None if paused else self.progress
+        done_before = len(followed.done) if followed is not None else 0
+        result = self.engine.tick(self.state, requested=() if paused else self._startable(), progress=followed,
+                                  disabled=self.disabled, blocked=self._blocked, now=self.clock())
         self.state = result.state
         if self.forced:
             self._hold_forces()
         self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
+        self._watch_progress(result, followed, done_before)
         if result.replan is not None and not self._revalidate(result.replan):
             self._want_plan(result.replan)
+            self._lost = result.lost
         for name in result.finished:
             self.errors.pop(name, None)
         goals = frozenset(self.goals())
@@ -246,6 +263,14 @@ class ControlCore:
             # Completed plan whose goals do not hold: the world moved on; plan again.
             self._want_plan(ReplanCause(ReplanReason.GOALS_NOT_REACHED))
         return result
+
+    def _watch_progress(self, result: TickResult, followed: PlanProgress | None, done_before: int) -> None:
+        if result.finished:
+            self.livelock.finished()
+            self._livelock_attempts.clear()
+            self._livelocks_said.clear()
+        elif followed is not None and len(followed.done) > done_before:
+            self.livelock.stepped(self.state)
 
     def _check_safety(self) -> None:
         events = self.safety.check(self.state, self.unknown)
@@ -276,7 +301,7 @@ class ControlCore:
         plan = self.planner.revalidate(self.state, rest, goals, self.disabled)
         if plan is None:
             return False
-        self.progress = PlanProgress(self.compiled, plan)
+        self._follow(plan)
         self.events.log.append(PlanKept(len(rest), cause))
         return True
 
@@ -295,6 +320,9 @@ class ControlCore:
         if self.planning or self.need_plan_reason is None or self.safety.stopped:
             return None  # a plan from a forbidden state waits until it clears
         goals = self.goals()
+        repeat = self._repeat(goals)
+        if repeat is not Repeat.FIRST and repeat is not Repeat.AGAIN:
+            goals = self.goals()  # the livelocked goals are in error now
         self.generation += 1
         self.planning = True
         self.requested_goals = frozenset(goals)
@@ -302,20 +330,54 @@ class ControlCore:
             self.events.replans += 1
             self.events.log.append(Replanned(self.need_plan_reason))
         reason, self.need_plan_reason = self.need_plan_reason, None
-        return PlanRequest(self.generation, self.state, goals, self.disabled, reason)
+        return PlanRequest(self.generation, self.state, goals, self.disabled, reason,
+                           reuse=repeat is Repeat.FIRST)
+
+    def _repeat(self, goals: Mapping[str, Predicate]) -> Repeat:
+        """Count this request; asked again in a loop that loses an effect, or too often, the goals go to error."""
+        lost, self._lost = self._lost, None
+        if not goals:
+            return Repeat.FIRST
+        repeat, count = self.livelock.asked(frozenset(goals), self.state)
+        if repeat is Repeat.GIVE_UP or (repeat is Repeat.LOOP and lost is not None):
+            self._livelocked(sorted(goals), lost, count, retry=repeat is Repeat.LOOP)
+        elif repeat is Repeat.LOOP:
+            return Repeat.AGAIN  # a retry, or a loop whose cause is not known: planned afresh
+        return repeat
+
+    def _livelocked(self, names: list[str], lost: LostEffect | None, count: int, *, retry: bool) -> None:
+        """The operations to `error`: with backoff if `retry` (LIVELOCK_RETRIES times), else until the operator
+        starts them again."""
+        now = self.clock()
+        diagnosis = lost.text if lost is not None else f"no progress in {count} plans from one state"
+        for name in names:
+            attempts = self._livelock_attempts[name] = self._livelock_attempts.get(name, 0) + 1
+            retried = retry and attempts <= LIVELOCK_RETRIES
+            wait = min(RETRY_FIRST_S * 2 ** (attempts - 1), RETRY_MAX_S) if retried else math.inf
+            previous = self.errors.get(name)
+            self.errors[name] = GoalError(diagnosis, now if previous is None else previous.since, now + wait, attempts,
+                                          livelock=True)
+            self._set_op_state(name, OperationState.ERROR)
+        said = lost.effect if lost is not None else ""
+        if said not in self._livelocks_said:  # said once, not at every retry
+            self._livelocks_said.add(said)
+            self.events.log.append(Livelock(names, lost.effect if lost is not None else "", diagnosis, count))
+        self.progress = None
 
     def error_text(self, name: str) -> str:
         """Why an operation has no plan and when it is tried again ("" when it has one)."""
         error = self.errors.get(name)
         if error is None:
             return ""
-        kind = "unreachable" if error.proven else "no plan found in time"
+        kind = "livelock" if error.livelock else "unreachable" if error.proven else "no plan found in time"
+        if math.isinf(error.retry_at):
+            return f"{kind}: {error.reason}; attempt {error.attempts}, not retried: stop and start it again"
         wait = max(0.0, error.retry_at - self.clock())
         return f"{kind}: {error.reason}; attempt {error.attempts}, retried in {wait:.0f} s"
 
     def next_retry(self) -> float | None:
         """When the first goal without a plan is tried again, if any."""
-        return min((e.retry_at for e in self.errors.values()), default=None)
+        return min((e.retry_at for e in self.errors.values() if not math.isinf(e.retry_at)), default=None)
 
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
         result, note = solve_goals(self.planner, request, self.budget)
@@ -356,11 +418,16 @@ class ControlCore:
             if error is not None:
                 if self.op_state(name) is OperationState.ERROR:
                     self._set_op_state(name, OperationState.EXECUTING)
-                self.events.log.append(PlanFound(name, error.attempts))
+                if not error.livelock:  # it always had plans: its retry is no news
+                    self.events.log.append(PlanFound(name, error.attempts))
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
-        self.progress = PlanProgress(self.compiled, result)
+        self._follow(result)
         return True
+
+    def _follow(self, plan: Plan) -> None:
+        # What last set each device going is kept from plan to plan, so that a lost effect names its cause.
+        self.progress = PlanProgress(self.compiled, plan, self._sent)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
         """A shorter plan for the request whose plan is under way (the portfolio kept searching): taken
@@ -381,7 +448,7 @@ class ControlCore:
             kept = self.planner.revalidate(self.state, better.steps[j:], goals, self.disabled)
             if kept is None:
                 continue
-            self.progress = PlanProgress(self.compiled, kept)
+            self._follow(kept)
             self.events.log.append(ShorterPlan(len(kept.steps), left, better.stats.method))
             return True
         return False
@@ -393,6 +460,8 @@ class ControlCore:
         if name in self.requested:
             self.requested.remove(name)
         self.errors.pop(name, None)
+        self._livelock_attempts.pop(name, None)
+        self.livelock.finished()  # the operator starts afresh: no count from before holds
         self._set_op_state(name, OperationState.INITIAL)
         if replan is not None:
             self._want_plan(replan)

@@ -20,26 +20,42 @@ Independent resources (the robot and the operator) therefore run in parallel whi
 every dependent step keeps the plan's order. The state must stay on the plan's
 predicted trace; when it leaves it, or when the next step can no longer fire, the
 tick asks for a replan with the reason.
+
+Effects take the time they take, and the measured state may be ahead of the plan's order: an
+effect the plan lists after a command can already be due when the command is to be sent (the
+vacuum holds before the robot has arrived). A command whose effect would overtake such an effect
+of the plan is **held** until the effect has happened (`RaceCheck.overtaking`, the planner's race
+test asked of the measured state); held longer than a bound derived from the effect's duration,
+the tick asks for a replan naming the step and the effect. When the state leaves the plan because
+an effect it needed lost its condition before it happened, the tick says which (`LostEffect`), so
+that the controller can name it if the same thing happens again and again.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
+from common.model.durations import effect_delays
+from common.model.predicates import format_value
 from common.wire.ctl import ReplanCause, ReplanReason
 
 from .planner import Plan
+from .planner.steps import RaceCheck
 
 MAX_OPERATION_ROUNDS = 1000
+# A held step waits at most this many times the longest duration of the effects it waits for: the effect
+# was due before the hold began, and its news still has to come from the hub.
+HOLD_BOUND_FACTOR = 2.0
 
 
 class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
-    def __init__(self, compiled: CompiledModel, plan: Plan) -> None:
+    def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None) -> None:
+        """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause)."""
         self.plan = plan
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = []
@@ -84,6 +100,9 @@ class PlanProgress:
         self.relevant = tuple(sorted(relevant))
         self.expected: dict[int, Value] = {i: plan.states[0][i] for i in self.relevant}
         self.done: set[int] = set()
+        self.held_since: dict[int, float] = {}  # deliberate steps held for a due effect, since when
+        self.due: dict[int, State] = {}  # effect steps next in line, the last state where their guard held
+        self.sent: dict[str, str] = {} if sent is None else sent  # resource -> the last command or automatic on it
 
     @property
     def complete(self) -> bool:
@@ -120,6 +139,44 @@ class PlanProgress:
     def next_step(self) -> int | None:
         return next(iter(self.pending()), None)
 
+    def pending_effects(self) -> frozenset[int]:
+        """The effect transitions (by number) the rest of the plan still needs."""
+        return frozenset(self.transitions[j].number for j in self.pending()
+                         if self.transitions[j].kind is TransitionKind.EFFECT)
+
+    def note_due(self, state: State) -> None:
+        """Remember, for each effect step whose predecessors are done, the last state in which it was enabled."""
+        for j in self.pending():
+            t = self.transitions[j]
+            if t.kind is TransitionKind.EFFECT and self.ready(j) and t.guard(state):
+                self.due[j] = state
+
+    def lost_effect(self, compiled: CompiledModel, state: State) -> LostEffect | None:
+        """An effect step that was due and lost its condition before it happened, and what took it away."""
+        for j, when_due in sorted(self.due.items()):
+            t = self.transitions[j]
+            if j in self.done or t.guard(state):
+                continue
+            changed = [i for i in sorted(t.reads) if when_due[i] != state[i]]
+            if not changed:
+                continue
+            i = changed[0]
+            path = compiled.paths[i]
+            after = self.sent.get(path.split(".", 1)[0])
+            because = f"{path} left {format_value(when_due[i])} (now {format_value(state[i])})"
+            return LostEffect(t.name, self.never_text(compiled, j), because + (f" after {after}" if after else ""))
+        return None
+
+    def note_sent(self, compiled: CompiledModel, t: CompiledTransition, step: int | None) -> None:
+        """A command or automatic transition fired (plan step `step`, if it is one): it set its resources going."""
+        label = t.name if step is None else f"step {step} {t.name}"
+        for i in t.writes:
+            self.sent[compiled.paths[i].split(".", 1)[0]] = label
+
+    def never_text(self, compiled: CompiledModel, j: int) -> str:
+        became = ", ".join(f"{compiled.paths[i]} never became {format_value(v)}" for i, v in self.post[j])
+        return f"{became or 'nothing changed'} ({self.transitions[j].name})"
+
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
         differing = [i for i in self.relevant if state[i] != self.expected[i]]
         if not differing:
@@ -127,6 +184,28 @@ class PlanProgress:
         shown = "; ".join(f"{compiled.paths[i]} is {state[i]!r}, expected {self.expected[i]!r}" for i in differing[:4])
         more = f" and {len(differing) - 4} more" if len(differing) > 4 else ""
         return f"{shown}{more} (after {len(self.done)} of {len(self.transitions)} steps)"
+
+
+@dataclass(frozen=True)
+class LostEffect:
+    """An effect the plan needed that never happened: its condition was taken away first."""
+
+    effect: str  # the effect transition
+    never: str  # "f.present_m never became false (f.taken.effect)"
+    because: str  # "r.pos_m left at_feeder (now unknown) after step 4 r.move_to_at_pallet.enabled"
+
+    @property
+    def text(self) -> str:
+        return f"{self.never}: {self.because}"
+
+
+@dataclass(frozen=True)
+class HeldStep:
+    """A plan step not sent yet: it would overtake an effect the plan needs that is due now."""
+
+    step: int
+    transition: str
+    waits_for: str  # the effect transition
 
 
 @dataclass
@@ -137,11 +216,17 @@ class TickResult:
     started: list[str] = field(default_factory=list)
     finished: list[str] = field(default_factory=list)
     replan: ReplanCause | None = None  # why the current plan cannot be followed
+    held: list[HeldStep] = field(default_factory=list)
+    lost: LostEffect | None = None  # with `replan`: the effect whose loss took the state off the plan
 
 
 class Engine:
-    def __init__(self, compiled: CompiledModel) -> None:
+    def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None) -> None:
+        """`delays`: seconds each effect takes, by effect transition name (default: the model's,
+        common/model/durations.py); they bound how long a step is held for a due effect."""
         self.compiled = compiled
+        self.races = RaceCheck(compiled)  # every resource's effects: a disabled device may still act
+        self.delays = dict(delays) if delays is not None else effect_delays(compiled.model)
         model = compiled.model
         self.operations = model.operations
         self.op_start = {op.name: compiled.by_name[f"{op.state_path}.start"] for op in model.operations}
@@ -163,13 +248,15 @@ class Engine:
         progress: PlanProgress | None = None,
         disabled: frozenset[str] = frozenset(),
         blocked: frozenset[str] = frozenset(),
+        now: float | None = None,
     ) -> TickResult:
         """`disabled`: resources whose transitions do not fire (tracking excepted); `blocked`: ability
-        transitions that do not fire (they write a variable the operator forced)."""
+        transitions that do not fire (they write a variable the operator forced); `now`: the caller's
+        clock, which bounds a held step (None: no bound)."""
         before = state
         result = TickResult(state)
         self._stage_operations(result, requested)
-        self._stage_abilities(result, progress, disabled, blocked)
+        self._stage_abilities(result, progress, disabled, blocked, now)
         # Stage 2's automatic transitions (tracking) may have made a goal or a requested operation's
         # precondition hold. Waiting for the next tick would wait for a state change that may never
         # come (nothing else is under way), so stage 1 runs again, with the automatics its start
@@ -226,7 +313,7 @@ class Engine:
         return is_disabled
 
     def _stage_abilities(self, result: TickResult, progress: PlanProgress | None, disabled: frozenset[str],
-                         blocked: frozenset[str]) -> None:
+                         blocked: frozenset[str], now: float | None) -> None:
         held = self._held(disabled, blocked)
 
         def is_disabled(t: CompiledTransition) -> bool:
@@ -235,12 +322,16 @@ class Engine:
         state, fired = self.compiled.close(result.state, held)
         result.fired += [t.name for t in fired]
         if progress is not None:
+            for t in fired:
+                progress.note_sent(self.compiled, t, None)
             while True:
                 self._observe(progress, state)
                 deviation = progress.deviation(self.compiled, state)
                 if deviation is not None:
                     result.replan = ReplanCause(ReplanReason.LEFT_PLAN, deviation)
+                    result.lost = progress.lost_effect(self.compiled, state)
                     break
+                progress.note_due(state)
                 fired_one = False
                 for j in list(progress.pending()):
                     t = progress.transitions[j]
@@ -249,15 +340,48 @@ class Engine:
                     if not t.guard(state):
                         result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
                         break
+                    if self._hold(result, progress, j, state, now):
+                        if result.replan is not None:
+                            break
+                        continue
                     state = t.outcomes[0](state)
                     result.fired.append(t.name)
                     progress.mark_done(j)
+                    progress.note_sent(self.compiled, t, j)
                     state, autos = self.compiled.close(state, held)
                     result.fired += [a.name for a in autos]
+                    for a in autos:
+                        progress.note_sent(self.compiled, a, None)
                     fired_one = True
                 if result.replan is not None or not fired_one:
                     break
         result.state = state
+
+    def _hold(self, result: TickResult, progress: PlanProgress, j: int, state: State, now: float | None) -> bool:
+        """Hold step j while it would overtake an effect the plan needs that is due on the measured state;
+        past the bound, ask for a replan (`result.replan`). False: the step may fire."""
+        t = progress.transitions[j]
+        races = self.races.overtaking(state, t)
+        if races:
+            needed = progress.pending_effects()
+            races = [race for race in races if race.due.number in needed]
+        if not races:
+            progress.held_since.pop(j, None)
+            return False
+        due = races[0].due
+        result.held.append(HeldStep(j, t.name, due.name))
+        if now is None:
+            return True
+        since = progress.held_since.setdefault(j, now)
+        bound = HOLD_BOUND_FACTOR * max(self.delays.get(race.due.name, 0.0) for race in races)
+        if now - since > bound:
+            detail = (f"step {j} {t.name} held {now - since:.2f} s for {due.name}, "
+                      f"which takes {self.delays.get(due.name, 0.0):.2f} s")
+            result.replan = ReplanCause(ReplanReason.RACE_HOLD_EXPIRED, detail)
+            k = next((k for k in progress.pending() if progress.transitions[k] is due), None)
+            never = progress.never_text(self.compiled, k) if k is not None else due.name
+            result.lost = LostEffect(due.name, never, f"step {j} {t.name} held {now - since:.2f} s for it")
+        return True
 
     @staticmethod
     def _observe(progress: PlanProgress, state: State) -> None:

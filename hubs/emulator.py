@@ -1,6 +1,6 @@
 """The model-driven emulator: the physical device is its resource's effect transitions.
 
-An enabled effect fires after a delay (scaled by `speed`); an effect with several
+An enabled effect fires after its device's delay (common/model/durations.py, scaled by `speed`); an effect with several
 outcomes picks one with a seeded random choice, so a nutrunner that fails with
 probability p is `failure={"nr": p}`. The emulator keeps no control state: it reads
 the command values it is given and writes measured values only.
@@ -13,23 +13,7 @@ from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 
 from common.model import Model, Transition, TransitionKind, Value, apply_all
-
-# Seconds an effect takes at speed 1, by device type: the operator is slower than the robot.
-# A device type of a station's own says its delay in its resource model
-# (`parameters["emulated_delay"]`), else it gets FALLBACK_DELAY.
-DEFAULT_DELAYS: dict[str, float] = {
-    "nutrunner": 0.12,
-    "ur": 0.15,
-    "rsp": 0.15,
-    "dock": 0.1,
-    "lift": 0.3,
-    "mir": 0.8,
-    "agv": 0.8,
-    "rfid": 0.4,
-    "camera": 0.1,
-    "operator": 0.5,
-}
-FALLBACK_DELAY = 0.2
+from common.model.durations import effect_owner, resource_delay
 
 
 @dataclass
@@ -72,14 +56,7 @@ class EffectEmulator:
         return {p.split(".", 1)[0] for p in t.written()}
 
     def delay_of(self, t: Transition) -> float:
-        resource = next(iter(t.written())).split(".", 1)[0]
-        if resource in self.delays:
-            return self.delays[resource] / self.speed
-        spec = self.model.resource_by_name[resource]
-        own = spec.parameters.get("emulated_delay")
-        if isinstance(own, int | float) and not isinstance(own, bool) and own >= 0:
-            return float(own) / self.speed
-        return DEFAULT_DELAYS.get(spec.device_type, FALLBACK_DELAY) / self.speed
+        return resource_delay(self.model.resource_by_name[effect_owner(t)], self.delays) / self.speed
 
     def _choose(self, t: Transition) -> int:
         if len(t.outcomes) == 1:

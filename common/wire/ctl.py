@@ -113,6 +113,8 @@ class ReplanReason(enum.StrEnum):
     RESET_BY_OPERATOR = "reset by the operator"  # detail: the operation
     SAFE_AGAIN = "no forbidden state holds any more"
     MIRROR_TAKEN = "a held resource's command state arrived"  # detail: the resource
+    # detail: the step and the effect it waited for (controller/engine.py holds a step that would overtake it)
+    RACE_HOLD_EXPIRED = "a step held for an effect due waited longer than the effect takes"
 
 
 _CAUSE_TEXT = {  # how a reason and its detail read where it is not "reason: detail"
@@ -201,6 +203,23 @@ class PlanFound(Event, tag="plan_found"):
     operation: str
     attempts: int
     template: ClassVar[str] = "plan found for {operation} after {attempts} attempt(s) without one"
+
+
+class Livelock(Event, tag="livelock"):
+    """The same goals were asked again and again from one state, no progress in between, because an effect the
+    plan needed never came: the operations go to `error` (retried with backoff, until `requests` reaches the
+    limit). Said once per diagnosis."""
+
+    operations: list[str]
+    effect: str  # the effect transition that never happened
+    diagnosis: str  # what never happened and what took its condition away
+    requests: int  # how often these goals were asked from that state since the last progress
+    fault: ClassVar[bool] = True
+
+    @property
+    def text(self) -> str:
+        return (f"livelock: {self.diagnosis}; asked {self.requests} times from one state without progress: "
+                f"{', '.join(self.operations)} in error")
 
 
 class HubAlive(Event, tag="hub_alive"):
@@ -302,9 +321,9 @@ class Recovered(Event, tag="recovered"):
     template: ClassVar[str] = "watchdog: {resource} recovered"
 
 
-ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | HubAlive | HubGone
-                | MirrorsMissing | HoldReleased | ForbiddenState | ForbiddenStateCleared | RequestAnswered | Unhealthy
-                | Recovered | ControllerChanged)
+ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | Livelock | HubAlive
+                | HubGone | MirrorsMissing | HoldReleased | ForbiddenState | ForbiddenStateCleared | RequestAnswered
+                | Unhealthy | Recovered | ControllerChanged)
 
 
 EVENT_WINDOW = 20  # the newest events of a full status

@@ -12,6 +12,7 @@ plan shown minimal is minimal too.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Mapping
 
 from common.model import Predicate
 from common.model.compiled import CompiledModel, State
@@ -22,6 +23,10 @@ from .steps import Move
 PLANS_KEPT = 64  # goal sets remembered (a run asks a few dozen)
 
 Key = tuple[tuple[Predicate, ...], frozenset[str]]  # the goals, the disabled resources
+
+
+def memory_key(goals: Mapping[str, Predicate], disabled: frozenset[str]) -> Key:
+    return tuple(goals.values()), frozenset(disabled)
 
 
 class PlanMemory:
@@ -47,6 +52,11 @@ class PlanMemory:
         except ValueError:
             return None
         return moves_of(self.compiled, plan.steps[position:]), plan.stats.minimal
+
+    def forget(self, key: Key) -> None:
+        """Hand back no plan for these goals until one is found again: the controller asked them again from a
+        state it had already planned from, with no progress since (controller/livelock.py)."""
+        self._plans.pop(key, None)
 
     def clear(self) -> None:
         self._plans.clear()

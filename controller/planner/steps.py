@@ -19,7 +19,7 @@ reading a written variable).
 from __future__ import annotations
 
 import operator
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 from common.model import TransitionKind
@@ -31,6 +31,32 @@ CYCLE_CHECK_AFTER = 64  # chain length from which repeated states are looked for
 RACE_ANSWERS_KEPT = 200_000  # RaceCheck answers by projected state
 
 
+@dataclass(frozen=True)
+class Race:
+    """A command starts effect `started` while effect `due` is enabled, and one firing first disables the other."""
+
+    started: CompiledTransition
+    due: CompiledTransition
+    started_disables_due: bool  # else `due` firing first disables `started`
+
+
+RacePairs = tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]
+
+
+def races_after(after: State, pairs: RacePairs) -> Iterator[Race]:
+    """The races in `after`, the state a command leads to: each effect it starts against each rival due."""
+    for f, rivals in pairs:
+        if not f.guard(after):
+            continue
+        for e in rivals:
+            if not e.guard(after):
+                continue
+            if any(not e.guard(o(after)) for o in f.outcomes):
+                yield Race(f, e, True)
+            elif any(not f.guard(o(after)) for o in e.outcomes):
+                yield Race(f, e, False)
+
+
 class RaceCheck:
     """Commands whose effect would race an effect already under way.
 
@@ -39,12 +65,14 @@ class RaceCheck:
     the tool at the dock and the robot sent home, in either order, count on the lock closing
     before the robot leaves; the real changer may lock on nothing. `races(state, t)`:
     deliberate `t` would start an effect f while an effect e is due, and e firing first
-    disables f, or f firing first disables e.
+    disables f, or f firing first disables e. The planner asks it of predicted states; the
+    engine asks `overtaking` of the measured state, where an effect may be due that the plan
+    predicted for later (controller/engine.py holds the command until that effect happened).
     """
 
     def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
         effects = [e for e in compiled.effects if not (e.resources & disabled)]
-        self._watch: dict[int, tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]] = {}
+        self._watch: dict[int, RacePairs] = {}
         # The answer depends only on the state after t on the variables the pairs' guards and outcomes
         # read (an outcome writes constants or copies of what its transition reads): a search asks the
         # same few projections thousands of times, so answers are kept by (t, projection).
@@ -73,21 +101,16 @@ class RaceCheck:
         if known is None:
             if len(self._known) >= RACE_ANSWERS_KEPT:  # memory stays bounded in a long run
                 self._known.clear()
-            known = self._known[key] = self._overtaken(after, pairs)
+            known = self._known[key] = any(races_after(after, pairs))
         return known
 
-    @staticmethod
-    def _overtaken(after: State,
-                   pairs: tuple[tuple[CompiledTransition, tuple[CompiledTransition, ...]], ...]) -> bool:
-        for f, rivals in pairs:
-            if not f.guard(after):
-                continue
-            for e in rivals:
-                if not e.guard(after):
-                    continue
-                if any(not f.guard(o(after)) for o in e.outcomes) or any(not e.guard(o(after)) for o in f.outcomes):
-                    return True
-        return False
+    def overtaking(self, state: State, t: CompiledTransition) -> list[Race]:
+        """The effects enabled in `state` that an effect started by `t` would disable, were it first."""
+        pairs = self._watch.get(t.number)
+        if pairs is None:
+            return []
+        return [race for race in races_after(t.outcomes[0](state), pairs)
+                if race.started_disables_due and race.due.guard(state)]
 
 
 @dataclass(frozen=True)

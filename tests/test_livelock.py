@@ -1,0 +1,77 @@
+"""The controller notices when it goes round in circles (controller/livelock.py): the same goals asked again
+from a state already seen since the last progress are planned afresh, then put in error."""
+
+from __future__ import annotations
+
+import math
+
+from common.model import OperationState
+from common.model.compiled import CompiledModel
+from common.wire.ctl import Livelock, ReplanCause, ReplanReason
+from controller.control import ControlCore
+from controller.livelock import GIVE_UP_AFTER, LOOP_AFTER, LivelockWatch, Repeat
+from controller.planner import Plan, Planner
+from tests.test_control import lamp_beside_a_gauge
+
+GOALS = frozenset({"LampOn"})
+
+
+def test_the_watch_counts_requests_from_a_state_until_a_step_reaches_a_new_state_or_an_operation_finishes() -> None:
+    watch = LivelockWatch()
+    here, there = ("a",), ("b",)
+    assert watch.asked(GOALS, here) == (Repeat.FIRST, 1)
+    watch.stepped(there)  # a state no round went through before: progress
+    assert watch.asked(GOALS, here) == (Repeat.FIRST, 1)
+    watch.stepped(there)  # the same round again: no progress
+    assert watch.asked(GOALS, here) == (Repeat.AGAIN, 2)
+    assert watch.asked(frozenset({"Other"}), here) == (Repeat.FIRST, 1)
+    assert watch.asked(GOALS, here) == (Repeat.LOOP, LOOP_AFTER)
+    watch.finished()
+    assert watch.asked(GOALS, here) == (Repeat.FIRST, 1)
+    for count in range(2, GIVE_UP_AFTER):
+        assert watch.asked(GOALS, here)[1] == count
+    assert watch.asked(GOALS, here) == (Repeat.GIVE_UP, GIVE_UP_AFTER)
+
+
+def lamp_core() -> ControlCore:
+    compiled = CompiledModel(lamp_beside_a_gauge())
+    core = ControlCore(compiled, Planner(compiled), clock=lambda: 0.0)
+    core.request("LampOn")
+    core.tick()
+    return core
+
+
+def test_asked_again_from_the_same_state_the_planner_searches_instead_of_handing_back_its_plan() -> None:
+    core = lamp_core()
+    first = core.plan_request()
+    assert first is not None and first.reuse
+    answer = core.solve(first)
+    assert isinstance(answer, Plan) and answer.stats.method != "reused"
+    core.adopt(first, answer)
+    core.load({})  # a restart: plan again, from the same state
+    again = core.plan_request()
+    assert again is not None and again.start == first.start and not again.reuse
+    answer = core.solve(again)
+    assert isinstance(answer, Plan) and answer.stats.method != "reused"
+
+
+def test_the_same_goals_asked_twenty_times_from_one_state_go_to_error_and_wait_for_the_operator() -> None:
+    core = lamp_core()
+    for _ in range(GIVE_UP_AFTER - 1):
+        request = core.plan_request()
+        assert request is not None and set(request.goals) == {"LampOn"}
+        core.adopt(request, core.solve(request))
+        core.load({})
+    request = core.plan_request()
+    assert request is not None and not request.goals
+    assert core.op_state("LampOn") is OperationState.ERROR
+    assert math.isinf(core.errors["LampOn"].retry_at) and core.next_retry() is None
+    assert core.error_text("LampOn").startswith(f"livelock: no progress in {GIVE_UP_AFTER} plans from one state")
+    said = [event for event in core.events.log if isinstance(event, Livelock)]
+    assert said == [Livelock(["LampOn"], "", f"no progress in {GIVE_UP_AFTER} plans from one state", GIVE_UP_AFTER)]
+    core.adopt(request, core.solve(request))
+    core.withdraw("LampOn", ReplanCause(ReplanReason.RESET_BY_OPERATOR, "LampOn"))  # and starts it again:
+    core.request("LampOn")
+    core.tick()
+    request = core.plan_request()  # counted afresh
+    assert request is not None and set(request.goals) == {"LampOn"} and request.reuse
