@@ -5,18 +5,22 @@ the feeder station of tests/timing_stations/feeder.py."""
 from __future__ import annotations
 
 from collections import Counter
+from pathlib import Path
 from typing import Any
 
 import msgspec
+import pytest
 
 from common.model import OperationState
 from common.wire.ctl import Livelock
 from controller.livelock import RETRIES as LIVELOCK_RETRIES
 from controller.recording.schema import OperationRecord, PlanRequestRecord, RecordKind
 from deploy.local.inprocess import run_in_process
+from deploy.local.station import Options, run_station
 from tests.timing_stations.feeder import build_model
 
 ONE_HOUR = 3600.0
+ROOT = Path(__file__).resolve().parent.parent
 
 
 class Recorded:
@@ -81,3 +85,18 @@ def test_a_race_no_plan_avoids_stops_with_the_diagnosis_within_a_minute_of_stati
     assert recorded.requests[-1][0] < 60.0
     assert summary.reason.startswith("stuck") and summary.emulated_seconds < 60.0
     assert recorded.most_requests_from_one_state() <= 20
+
+
+@pytest.mark.slow
+async def test_the_feeder_station_completes_as_processes_over_zenoh(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """`hubctl up --config tests/timing_stations/hubs.toml`: the race of issue 21 on real hubs, whose emulated
+    effects come at their own times, not when the controller asks."""
+    monkeypatch.chdir(ROOT)
+    lines: list[str] = []
+    options = Options(config=str(ROOT / "tests" / "timing_stations" / "hubs.toml"), speed=1.0, run_dir=tmp_path,
+                      time_limit=120.0)
+    code = await run_station(options, say=lines.append)
+    output = "\n".join(lines)
+    assert code == 0, output[-3000:]
+    assert "finished: 1/1 operations" in output, output[-3000:]
