@@ -29,6 +29,7 @@ from common.holder import declare_holder
 from common.keys import Keys, station_keys
 from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
 from common.model import Kind, Model, Value
+from common.modes import NetworkMode
 from common.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
 from common.zenohbus import ZenohBus
 
@@ -115,7 +116,7 @@ _SHARED: dict[tuple[str, tuple[str, ...], tuple[str, ...], int], BusThread] = {}
 _SHARED_LOCK = threading.Lock()
 
 
-def shared_bus(*, listen: Iterable[str] = (), connect: Iterable[str] = (), mode: str = "peer",
+def shared_bus(*, listen: Iterable[str] = (), connect: Iterable[str] = (), mode: NetworkMode = NetworkMode.PEER,
                lease_ms: int = 2000, tls: TlsSettings | None = None) -> BusThread:
     """One BusThread per network setting for the whole process (pytest sessions): a listener
     bound once stays bound, however many tests use it. Closed at exit."""

@@ -21,6 +21,7 @@ from hypothesis.errors import Flaky
 
 from common.config import StationConfig, load_config, load_station
 from common.model import Model
+from common.modes import NetworkMode
 from common.security import identity_of, tls_endpoints
 from common.station_net import tls_settings
 from common.zenoh_config import TlsSettings
@@ -41,7 +42,7 @@ class Target:
     station: str
     listen: tuple[str, ...] = ()  # zenoh endpoints to listen on (where the controller would listen)
     connect: tuple[str, ...] = ()  # zenoh endpoints to connect to
-    mode: str = "peer"
+    mode: NetworkMode = NetworkMode.PEER
     lease_ms: int = 2000
     command_rate_hz: float = 10.0
     # [security] mode "tls": the controller's certificate and the station's access control

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TextIO
 
 from common.config import StationConfig, load_station
+from common.modes import SecurityMode
 from common.security import cert_dir, identity_of, tls_files
 from common.selftest import format_report
 from common.zenohbus import ZenohBus
@@ -129,7 +130,7 @@ def read_station_file(path: Path) -> bytes:
 def hub_cert_files(config: StationConfig, hub: str) -> list[tuple[str, Path]]:
     """The CA certificate and the hub's certificate and key to ship ([security] mode "tls"), from this
     machine's certificate directory (`hubctl certs issue HUB`)."""
-    if config.security.mode != "tls":
+    if config.security.mode != SecurityMode.TLS:
         return []
     files = tls_files(cert_dir(config), identity_of(config, hub))
     return [(p.name, p) for p in (files.root_ca, files.certificate, files.private_key)]
@@ -333,7 +334,7 @@ async def install_steps(progress: Progress, remote: Remote, config: StationConfi
             groups = hub_groups(config.hubs[hub])
             try:
                 certs = (layout.certs(hub), [n for n, _ in hub_cert_files(config, hub)]) \
-                    if config.security.mode == "tls" else None
+                    if config.security.mode == SecurityMode.TLS else None
                 await remote.run(scripts.install_unit(layout, release, stage, unit, groups, certs=certs),
                                  what=f"install {unit}", privileged=True)
             except RemoteError as exc:
