@@ -22,18 +22,20 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from common.model import Model, Value
+from common.model import Model, OperationState, Value
 from common.model.compiled import CompiledModel
 from common.recording.reader import Run
 from common.recording.schema import (
     CommandRecord,
     OperationRecord,
+    PlanAnswer,
     PlanRecord,
     PlanRequestRecord,
     RecordKind,
     RestoreRecord,
     StateRecord,
     WatchdogRecord,
+    WatchdogVerdict,
 )
 
 READ = (RecordKind.RESTORE, RecordKind.STATE, RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST,
@@ -198,13 +200,13 @@ def _operation(timeline: Timeline, open_: dict[str, tuple[str, float]], name: st
     previous = open_.pop(name, None)
     if previous is not None:
         timeline.operation_spans.append(Span(name, previous[0], previous[1], t, previous[0]))
-    if state != "initial":
+    if state != OperationState.INITIAL:
         open_[name] = (state, t)
 
 
 def _answered(timeline: Timeline, at: int | None, data: PlanRecord) -> None:
     """The first answer to a request, said on its marker: how many steps, or why there is none."""
-    if at is None or data.answer != "first":
+    if at is None or data.answer != PlanAnswer.FIRST:
         return
     marker = timeline.plans[at]
     answer = f"{len(data.steps)} steps ({data.member})" if data.found else f"no plan: {data.no_plan}"
@@ -213,7 +215,7 @@ def _answered(timeline: Timeline, at: int | None, data: PlanRecord) -> None:
 
 def _health(timeline: Timeline, open_: dict[str, tuple[float, str]], resource: str, data: WatchdogRecord,
             t: float) -> None:
-    if data.verdict == "unhealthy":
+    if data.verdict == WatchdogVerdict.UNHEALTHY:
         open_.setdefault(resource, (t, data.detail))
         return
     began = open_.pop(resource, None)

@@ -7,7 +7,7 @@ from pathlib import Path
 from common.config import RecordingConfig, load_config
 from common.model import Model
 from common.recording.reader import list_runs
-from common.recording.schema import RunMeta
+from common.recording.schema import RunMeta, RunMode
 from common.recording.writer import RecordingWriter, recording_dir
 from controller.planner import Budget
 from controller.recorder import open_recording
@@ -25,7 +25,8 @@ def in_process_recording(model: Model, model_reference: str, config_path: str | 
     """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
     counts = {"first_expansions": budget.first_expansions, "improve_expansions": budget.improve_expansions,
               "symbolic_layers": budget.symbolic_layers}
-    meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode="in-process", seed=seed,
+    meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode=RunMode.IN_PROCESS,
+                   seed=seed,
                    budget=counts)
     return open_recording(recording_settings(config_path), meta, model)
 
