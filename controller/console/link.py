@@ -29,6 +29,7 @@ from common.bus import Bus, BusError, Sample, Subscription
 from common.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
 from common.keys import station_keys
 from common.messages import Message, MessageError, decode, encode
+from common.modes import NetworkMode
 from common.selftest import SelftestMessage
 from common.statusview import StatusFollower, fetch_plan
 from common.zenoh_config import ZenohConfig, zenoh_config
@@ -70,7 +71,7 @@ class ConsoleLink:
         """`zconfig`: the session's config when the station is secured (common/station_net.py)."""
         self.keys = station_keys(station)
         self.connect = list(connect)
-        self.config = zconfig or zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
+        self.config = zconfig or zenoh_config(NetworkMode.PEER, listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
         self.plan: PlanDetails | None = None
         self.snapshot: StateSnapshot | None = None

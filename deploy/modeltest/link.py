@@ -19,7 +19,7 @@ import queue
 import threading
 import time
 import uuid
-from collections.abc import Coroutine, Iterable, Mapping
+from collections.abc import Callable, Coroutine, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -27,7 +27,7 @@ from common.bus import Bus, Subscription, Token
 from common.ctl import StatusMessage
 from common.holder import declare_holder
 from common.keys import Keys, station_keys
-from common.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
+from common.messages import Codec, CommandMessage, HubStatus, MessageError, ModelMismatch, StateMessage, decode
 from common.model import Kind, Model, Value
 from common.modes import NetworkMode
 from common.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
@@ -201,12 +201,12 @@ class ResourceLink:
         for other, kinds in by_resource.items():
             codec = Codec(self.model.resource_by_name[other])
             if Kind.MEASURED in kinds:
-                self._watch(bus.subscribe(self.keys.state(other)), self._context_handler(codec, "state"))
+                self._watch(bus.subscribe(self.keys.state(other)), self._context_handler(codec, codec.decode_state))
             if Kind.COMMAND in kinds:
-                self._watch(bus.subscribe(self.keys.cmd(other)), self._context_handler(codec, "cmd"))
+                self._watch(bus.subscribe(self.keys.cmd(other)), self._context_handler(codec, codec.decode_command))
         self._tasks.append(asyncio.create_task(self._resend(), name=f"modeltest resend {name}"))
 
-    def _watch(self, subscription: Subscription[Any], handler: Any) -> None:
+    def _watch(self, subscription: Subscription[Any], handler: Callable[[bytes], None]) -> None:
         self._subscriptions.append(subscription)
 
         async def consume() -> None:
@@ -251,7 +251,7 @@ class ResourceLink:
             measured=self.codec.values(state, paths=True),
             mirror_seq=None if mirror is None else mirror.seq,
             mirror_controller=None if mirror is None else mirror.controller,
-            mirror=None if mirror is None else self.codec.values(mirror, paths=True),  # type: ignore[arg-type]
+            mirror=None if mirror is None else self._command_values(mirror),
             status=state.status, detail=state.detail, hub=state.hub, context=dict(self._context)))
 
     def _on_own_command(self, payload: bytes) -> None:
@@ -268,12 +268,18 @@ class ResourceLink:
             status = decode(payload, StatusMessage)
             self.controller_status[status.controller] = time.monotonic()
 
-    def _context_handler(self, codec: Codec, what: str) -> Any:
+    def _command_values(self, command: CommandMessage) -> dict[str, Value]:
+        # A command carries every command variable, none unknown (Codec.command checks it).
+        return {path: value for path, value in self.codec.values(command, paths=True).items() if value is not None}
+
+    def _context_handler(self, codec: Codec, decode_message: Callable[[bytes], CommandMessage | StateMessage]
+                         ) -> Callable[[bytes], None]:
+        """Another resource's states or commands (read by `decode_message`): their values the guards read."""
         wanted = set(self.context_paths)
 
         def handle(payload: bytes) -> None:
             try:
-                message = codec.decode_state(payload) if what == "state" else codec.decode_command(payload)
+                message = decode_message(payload)
             except MessageError:
                 return
             for path, value in codec.values(message, paths=True).items():
