@@ -19,6 +19,7 @@ time in `up --in-process`). render.py draws a Timeline with matplotlib; the cons
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -52,10 +53,18 @@ class Span:
     outcome: str = ""  # an ability: done, aborted or running; an operation: its state
 
 
+class MarkerKind(enum.StrEnum):
+    """What a marker on the timeline's time axis stands for (the word is shown beside it)."""
+
+    PLAN = "plan"  # the run's first plan request
+    REPLAN = "replan"  # every later one
+    FAULT = "fault"  # a fault in the controller's event log
+
+
 @dataclass(frozen=True)
 class Marker:
     t: float
-    kind: str  # "plan" (the first), "replan", "fault"
+    kind: MarkerKind
     text: str
     lane: str = ""  # the resource or operation it is about, if one
 
@@ -172,7 +181,7 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
         elif isinstance(data, OperationRecord):
             _operation(timeline, operation_open, record.key, data.after, t)
         elif isinstance(data, PlanRequestRecord):
-            kind = "plan" if not timeline.plans else "replan"
+            kind = MarkerKind.PLAN if not timeline.plans else MarkerKind.REPLAN
             text = data.reason + (f": {data.detail}" if data.detail else "")
             plan_markers[record.key] = len(timeline.plans)
             timeline.plans.append(Marker(t, kind, text))
@@ -182,7 +191,7 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
             _health(timeline, unhealthy_open, record.key, data, t)
         elif getattr(data, "fault", False):
             lane = getattr(data, "resource", "") or getattr(data, "hub", "")
-            timeline.faults.append(Marker(t, "fault", data.text, lane))  # type: ignore[union-attr]
+            timeline.faults.append(Marker(t, MarkerKind.FAULT, data.text, lane))  # type: ignore[union-attr]
     for name, (state, began) in operation_open.items():
         timeline.operation_spans.append(Span(name, state, began, end, state))
     for resource, (began, reason) in unhealthy_open.items():
