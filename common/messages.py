@@ -42,7 +42,7 @@ import hashlib
 import json
 import time as _time
 from collections.abc import Iterable, Mapping
-from typing import Annotated, Any, Literal, Protocol, TypeVar, cast, runtime_checkable
+from typing import Annotated, Any, Literal, Protocol, TypeVar, cast, overload, runtime_checkable
 
 import msgspec
 
@@ -330,9 +330,14 @@ class Codec:
             schema=SCHEMA, model_hash=self.model_hash, mirror=mirror, status=HubStatus(status), detail=detail,
             seq=seq, hub=hub, time=_time.time() if time is None else time, **measured))
 
-    def values(self, message: CommandMessage | StateMessage, *, paths: bool = False) -> dict[str, Value | None]:
-        """The variables of a command (command vars) or a state (measured vars, None = unknown),
-        keyed by short name, or by path (`nr.run_c`) with `paths=True`."""
+    @overload
+    def values(self, message: CommandMessage, *, paths: bool = False) -> dict[str, Value]: ...
+    @overload
+    def values(self, message: StateMessage, *, paths: bool = False) -> dict[str, Value | None]: ...
+
+    def values(self, message: CommandMessage | StateMessage, *, paths: bool = False) -> Mapping[str, Value | None]:
+        """The variables of a command (command vars, every one known) or a state (measured vars,
+        None = unknown), keyed by short name, or by path (`nr.run_c`) with `paths=True`."""
         variables = self.commands if isinstance(message, self.Command) else self.measured
         if not isinstance(message, self.Command | self.State):
             raise TypeError(f"not a message of resource {self.resource}: {type(message).__name__}")
@@ -349,7 +354,7 @@ class Codec:
         """The Command in `data`; raises MessageError (DomainError: a value out of its domain)."""
         self._check_size(data, self.max_command_bytes, MessageKind.COMMAND)
         try:
-            command: CommandMessage = self._command_decoder.decode(data)
+            command = cast(CommandMessage, self._command_decoder.decode(data))
         except Exception:
             raise self._explain(data, MessageKind.COMMAND) from None
         self._check_envelope(command, "command")
@@ -361,7 +366,7 @@ class Codec:
         """The State in `data`; raises MessageError."""
         self._check_size(data, self.max_state_bytes, MessageKind.STATE)
         try:
-            state: StateMessage = self._state_decoder.decode(data)
+            state = cast(StateMessage, self._state_decoder.decode(data))
         except Exception:
             raise self._explain(data, MessageKind.STATE) from None
         self._check_envelope(state, "state")

@@ -21,6 +21,7 @@ import time
 import uuid
 from collections.abc import Callable, Coroutine, Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 from common.bus import Bus, Subscription, Token
@@ -112,7 +113,8 @@ class BusThread:
             self._thread.join(10.0)
 
 
-_SHARED: dict[tuple[str, tuple[str, ...], tuple[str, ...], int], BusThread] = {}
+# One per (mode, listen, connect, lease_ms, certificate).
+_SHARED: dict[tuple[NetworkMode, tuple[str, ...], tuple[str, ...], int, Path | None], BusThread] = {}
 _SHARED_LOCK = threading.Lock()
 
 
@@ -251,7 +253,7 @@ class ResourceLink:
             measured=self.codec.values(state, paths=True),
             mirror_seq=None if mirror is None else mirror.seq,
             mirror_controller=None if mirror is None else mirror.controller,
-            mirror=None if mirror is None else self._command_values(mirror),
+            mirror=None if mirror is None else self.codec.values(mirror, paths=True),
             status=state.status, detail=state.detail, hub=state.hub, context=dict(self._context)))
 
     def _on_own_command(self, payload: bytes) -> None:
@@ -267,10 +269,6 @@ class ResourceLink:
         with contextlib.suppress(MessageError):
             status = decode(payload, StatusMessage)
             self.controller_status[status.controller] = time.monotonic()
-
-    def _command_values(self, command: CommandMessage) -> dict[str, Value]:
-        # A command carries every command variable, none unknown (Codec.command checks it).
-        return {path: value for path, value in self.codec.values(command, paths=True).items() if value is not None}
 
     def _context_handler(self, codec: Codec, decode_message: Callable[[bytes], CommandMessage | StateMessage]
                          ) -> Callable[[bytes], None]:
