@@ -7,7 +7,10 @@ file that holds one keep the words they had; code compares the members, never th
 
 from __future__ import annotations
 
+import argparse
 import enum
+from collections.abc import Callable
+from typing import TypeVar
 
 
 class DeviceMode(enum.StrEnum):
@@ -33,5 +36,23 @@ class SecurityMode(enum.StrEnum):
 
 
 def words(mode: type[enum.StrEnum]) -> tuple[str, ...]:
-    """A mode's words in declared order: argparse's `choices`, and the list an error shows."""
+    """A mode's words in declared order: the list an error shows."""
     return tuple(member.value for member in mode)
+
+
+Mode = TypeVar("Mode", bound=enum.StrEnum)
+
+
+def argument(mode: type[Mode]) -> Callable[[str], Mode]:
+    """argparse's `type` for an option taking a mode (`--mode sim`): the member, or argparse's own
+    "invalid choice" error listing the words (its default would name the enum class instead)."""
+
+    def parse(text: str) -> Mode:
+        try:
+            return mode(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"invalid choice: {text!r} (choose from {', '.join(words(mode))})") from None
+
+    parse.__name__ = mode.__name__
+    return parse

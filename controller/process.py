@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from common.config import load_station
+from common.modes import argument
 from common.process import EXPECTED_ERRORS, network, positive, run_main, setup_logging, stop_on_signals
 from common.recording.schema import RunMeta, RunMode
 
@@ -32,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true",
                         help="do not record the run (default: into [controller.recording] dir, see `hubctl replay`)")
     # Set by `hubctl up`: what the recording says about the run.
-    parser.add_argument("--run-mode", type=RunMode, choices=(RunMode.SERVICE, RunMode.UP), default=RunMode.SERVICE,
-                        help=argparse.SUPPRESS)
+    parser.add_argument("--run-mode", type=argument(RunMode), choices=(RunMode.SERVICE, RunMode.UP),
+                        default=RunMode.SERVICE, help=argparse.SUPPRESS)
     parser.add_argument("--run-seed", type=int, help=argparse.SUPPRESS)
     parser.add_argument("-v", "--verbose", action="store_true")
 

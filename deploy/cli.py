@@ -12,7 +12,7 @@ from pathlib import Path
 
 from common.config import ConfigError, ConfigProblem, load_config, load_station
 from common.model import Model, ParseError, parse_predicate
-from common.modes import DeviceMode
+from common.modes import DeviceMode, argument
 from common.process import EXPECTED_ERRORS, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
 from controller import process as controller_process
@@ -193,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
     up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
-    up.add_argument("--mode", type=DeviceMode, choices=list(DeviceMode),
+    up.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
                     help="run every device in this mode (default: as in hubs.toml)")
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
                     help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")

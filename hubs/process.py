@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from common.config import load_station
-from common.modes import DeviceMode
+from common.modes import DeviceMode, argument
 from common.process import network, positive, run_main, setup_logging, stop_on_signals
 
 
@@ -50,7 +50,8 @@ def add_selftest_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a hub's self-test: which hub of which hubs.toml, its devices' modes and parameters."""
     parser.add_argument("name", help="the hub, e.g. pi-tool")
     parser.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
-    parser.add_argument("--mode", type=DeviceMode, choices=list(DeviceMode), help="override every device's mode")
+    parser.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
+                        help="override every device's mode")
     parser.add_argument("--params-file", metavar="FILE",
                         help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
 
