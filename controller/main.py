@@ -13,8 +13,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from common.config.hubs_toml import load_station
+from common.config.modes import argument
 from common.plumbing.lifecycle import EXPECTED_ERRORS, network, positive, run_main, setup_logging, stop_on_signals
-from controller.recording.schema import RunMeta
+from controller.recording.schema import RunMeta, RunMode
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true",
                         help="do not record the run (default: into [controller.recording] dir, see `hubctl replay`)")
     # Set by `hubctl up`: what the recording says about the run.
-    parser.add_argument("--run-mode", choices=("service", "up"), default="service", help=argparse.SUPPRESS)
+    parser.add_argument("--run-mode", type=argument(RunMode), choices=(RunMode.SERVICE, RunMode.UP),
+                        default=RunMode.SERVICE, help=argparse.SUPPRESS)
     parser.add_argument("--run-seed", type=int, help=argparse.SUPPRESS)
     parser.add_argument("-v", "--verbose", action="store_true")
 

@@ -22,8 +22,10 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-HEALTHY_STATUSES = frozenset({"ok", "no_command"})
-REJECTED = "rejected"
+from common.wire.messages import HubStatus
+
+# A hub reports nothing wrong: it applies our commands, or has had none yet (its outputs in the safe state).
+HEALTHY_STATUSES = frozenset({HubStatus.OK, HubStatus.NO_COMMAND})
 
 
 @dataclass
@@ -32,7 +34,7 @@ class ResourceWatch:
     hub: str
     alive: bool = False
     last_state: float | None = None
-    hub_status: str = "unknown"
+    hub_status: HubStatus | None = None  # None: no state received yet
     hub_detail: str = ""
     status_since: float = 0.0  # when the hub's status (or its detail) last changed
     commanded_seq: int = -1  # none yet: the first command sent (seq 0) is watched too
@@ -66,7 +68,7 @@ class Watchdog:
             if w.hub == hub:
                 w.alive = alive
 
-    def state_received(self, resource: str, status: str, detail: str, mirrored_seq: int | None) -> None:
+    def state_received(self, resource: str, status: HubStatus, detail: str, mirrored_seq: int | None) -> None:
         w = self.watches.get(resource)
         if w is None:
             return
@@ -102,12 +104,12 @@ class Watchdog:
         age = None if w.last_state is None else now - w.last_state
         lag = max(0, w.commanded_seq - w.mirrored_seq) if w.commanded_at is not None else 0
         reported = ""
-        if w.hub_status not in HEALTHY_STATUSES:
+        if w.hub_status is not None and w.hub_status not in HEALTHY_STATUSES:
             reported = f"hub reports {w.hub_status}" + (f": {w.hub_detail}" if w.hub_detail else "")
         # Not ours: every command we sent is mirrored (or we sent none), or the rejection was reported
         # before the oldest one that is not was sent, so the refused command came from elsewhere.
         ours = bool(w.unmirrored) and w.status_since >= w.unmirrored[0][1]
-        foreign = w.hub_status == REJECTED and not ours
+        foreign = w.hub_status == HubStatus.REJECTED and not ours
         reason = ""
         if not w.alive:
             reason = f"hub {w.hub} is not alive (no liveliness token)"

@@ -10,7 +10,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from common.config.hubs_toml import DEVICE_MODES, ConfigError, ConfigProblem, load_config, load_station
+from common.config.hubs_toml import ConfigError, ConfigProblem, load_config, load_station
+from common.config.modes import DeviceMode, argument
 from common.model import Model, ParseError, parse_predicate
 from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
@@ -123,7 +124,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 
         station = load_config(config)
         # A device without driver, or a bad parameter, stops here (the sim world adds simulator addresses).
-        check_devices(station, mode=args.mode, world=args.mode == "sim")
+        check_devices(station, mode=args.mode, world=args.mode == DeviceMode.SIM)
         if args.model is not None:
             # Every process loads the model its hubs.toml names: one given here could not reach them.
             named = station.station.model
@@ -193,7 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
     up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
-    up.add_argument("--mode", choices=DEVICE_MODES, help="run every device in this mode (default: as in hubs.toml)")
+    up.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
+                    help="run every device in this mode (default: as in hubs.toml)")
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
                     help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")
     up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")

@@ -13,13 +13,12 @@ epoch's commands are refused from then on.
 from __future__ import annotations
 
 import logging
-from typing import Any
 
 from common.bus.protocol import Bus, Sample
 from common.wire.badpayload import BadPayloads
 from common.wire.holder_token import Holder, highest
 from common.wire.keys import Keys
-from common.wire.messages import Codec, CommandSender, DomainError, MessageError, ModelMismatch
+from common.wire.messages import Codec, CommandMessage, CommandSender, DomainError, MessageError, ModelMismatch
 
 log = logging.getLogger("statehub.hub")
 
@@ -62,7 +61,7 @@ class Authority:
         held = holder.describe() if holder is not None else "no controller"
         return f"not the station's holder (held by {held})"
 
-    def decode(self, codec: Codec, sample: Sample) -> Any:
+    def decode(self, codec: Codec, sample: Sample) -> CommandMessage | None:
         """The holder's command in `sample`, or None when it is dropped (logged, rate-limited): too
         long, unreadable, or not the holder's. A command of the holder that is out of its domain or
         of another model raises (DomainError, ModelMismatch): the hub says so in its status."""

@@ -31,6 +31,7 @@ from typing import Any
 import msgspec
 
 from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, StationConfig
+from common.config.modes import DeviceMode, words
 from common.model import Model
 
 from .drivers.base import Driver
@@ -41,7 +42,6 @@ from .plugins import PluginError
 from .sim.registry import find_simulator
 
 Overrides = Mapping[str, Mapping[str, Any]]  # resource -> parameter -> value
-MODES = ("sim", "real")
 EMULATION_PARAMS = ("delay", "failure_probability")  # the emulated device's, never a driver's
 
 
@@ -53,14 +53,14 @@ class NoDriver(LookupError):
                          f"entry-point group {ENTRY_POINT_GROUP!r}")
 
 
-def effective_mode(device_type: str, configured: str, override: str | None) -> str:
+def effective_mode(device_type: str, configured: DeviceMode, override: DeviceMode | None) -> DeviceMode:
     """The mode a device runs in. `--mode sim` leaves the devices whose type has no simulator
     (the operator, the AGV) emulated; a device configured `sim` in hubs.toml is not helped."""
     if override is None:
-        return configured
-    if override == "sim" and find_simulator(device_type) is None:
-        return "emulate"
-    return override
+        return DeviceMode(configured)
+    if override == DeviceMode.SIM and find_simulator(device_type) is None:
+        return DeviceMode.EMULATE
+    return DeviceMode(override)
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class DriverSpec:
     params: msgspec.Struct
 
 
-def resolve(device_type: str, mode: str, raw: Mapping[str, Any]) -> DriverSpec:
+def resolve(device_type: str, mode: DeviceMode, raw: Mapping[str, Any]) -> DriverSpec:
     """The builder and typed parameters of a device in sim or real mode. Raises NoDriver,
     ParamError (naming the parameter) or PluginError (a plugin that does not load)."""
     plugin = find_driver(device_type)
@@ -79,7 +79,7 @@ def resolve(device_type: str, mode: str, raw: Mapping[str, Any]) -> DriverSpec:
         raise NoDriver(device_type)
     build, params_type = plugin.build, plugin.params
     raw = {key: value for key, value in raw.items() if key not in EMULATION_PARAMS}
-    simulator = find_simulator(device_type) if mode == "sim" else None
+    simulator = find_simulator(device_type) if mode == DeviceMode.SIM else None
     if simulator is not None:
         raw = {**simulator.defaults, **raw}
         if simulator.in_hub is not None:
@@ -87,13 +87,17 @@ def resolve(device_type: str, mode: str, raw: Mapping[str, Any]) -> DriverSpec:
     return DriverSpec(build, convert_params(params_type, raw))
 
 
-def make_driver(resource: str, device_type: str, mode: str, params: Mapping[str, Any] | None = None) -> Driver:
-    """The driver of one resource in sim or real mode. Raises ValueError naming what is wrong."""
-    if mode == "emulate":
+def make_driver(resource: str, device_type: str, mode: DeviceMode | str,
+                params: Mapping[str, Any] | None = None) -> Driver:
+    """The driver of one resource in sim or real mode (also given as its word: a test, a script).
+    Raises ValueError naming what is wrong."""
+    if mode not in words(DeviceMode):
+        raise ValueError(f"resource {resource!r}: unknown mode {mode!r}; expected one of "
+                         f"{', '.join(words(DeviceMode))}")
+    mode = DeviceMode(mode)
+    if mode == DeviceMode.EMULATE:
         raise ValueError(f"resource {resource!r}: mode 'emulate' is built from the resource model "
                          "(build_drivers, hubs.drivers.emulated), not by make_driver")
-    if mode not in MODES:
-        raise ValueError(f"resource {resource!r}: unknown mode {mode!r}; expected one of sim, real, emulate")
     where = f"resource {resource!r} ({device_type}, {mode})"
     try:
         spec = resolve(device_type, mode, params or {})
@@ -108,7 +112,7 @@ def make_driver(resource: str, device_type: str, mode: str, params: Mapping[str,
 
 # --- checking every device before anything starts ----------------------------------------------
 
-def device_problems(config: StationConfig, *, hub: str | None = None, mode: str | None = None,
+def device_problems(config: StationConfig, *, hub: str | None = None, mode: DeviceMode | None = None,
                     overrides: Overrides | None = None, world: bool = False) -> list[ConfigProblem]:
     """Devices (of `hub`, or of every hub) in sim or real mode whose type has no driver, or whose
     parameters their driver does not accept; each with file, line and key. `world`: a sim world
@@ -127,7 +131,7 @@ def device_problems(config: StationConfig, *, hub: str | None = None, mode: str 
             chosen = device.mode
             try:
                 chosen = effective_mode(device.type, device.mode, mode)
-                if chosen != "emulate":
+                if chosen != DeviceMode.EMULATE:
                     resolve(device.type, chosen, {**device.params, **extra})
                 continue
             except NoDriver as exc:
@@ -145,18 +149,18 @@ def device_problems(config: StationConfig, *, hub: str | None = None, mode: str 
     return problems
 
 
-def _world_supplies(device_type: str, mode: str) -> bool:
-    simulator = find_simulator(device_type) if mode == "sim" else None
+def _world_supplies(device_type: str, mode: DeviceMode) -> bool:
+    simulator = find_simulator(device_type) if mode == DeviceMode.SIM else None
     return simulator is not None and simulator.server is not None
 
 
-def _no_driver(exc: NoDriver, hub: str, configured: str, chosen: str) -> str:
-    how = f"mode {chosen!r}" if configured == chosen else f"mode {chosen!r} (--mode {chosen})"
+def _no_driver(exc: NoDriver, hub: str, configured: DeviceMode, chosen: DeviceMode) -> str:
+    how = f"mode '{chosen}'" if configured == chosen else f"mode '{chosen}' (--mode {chosen})"
     return (f"{exc} (device in hub {hub!r}, {how}); install the package that provides it, or run the device in "
             f"mode 'emulate' (from the station model)")
 
 
-def check_devices(config: StationConfig, *, hub: str | None = None, mode: str | None = None,
+def check_devices(config: StationConfig, *, hub: str | None = None, mode: DeviceMode | None = None,
                   overrides: Overrides | None = None, world: bool = False) -> None:
     """Raise ConfigError listing every problem `device_problems` finds."""
     problems = device_problems(config, hub=hub, mode=mode, overrides=overrides, world=world)
@@ -202,7 +206,7 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
 # --- the drivers of one hub --------------------------------------------------------------------
 
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
-                  mode: str | None = None, failure: dict[str, float] | None = None,
+                  mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
                   overrides: Overrides | None = None) -> dict[str, Driver]:
     """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`); `failure` overrides the
     failure probability of emulated resources; `overrides` are merged into the devices' parameters.
@@ -216,7 +220,7 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
     for resource, device in config.hubs[hub].devices.items():
         chosen = effective_mode(device.type, device.mode, mode)
         params = {**device.params, **overrides.get(resource, {})}
-        if chosen == "emulate":
+        if chosen == DeviceMode.EMULATE:
             # the real device's parameters are ignored when emulating
             drivers[resource] = EmulatedDriver(
                 model, resource, speed=speed,

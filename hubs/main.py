@@ -13,7 +13,8 @@ import logging
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from common.config.hubs_toml import DEVICE_MODES, load_station
+from common.config.hubs_toml import load_station
+from common.config.modes import DeviceMode, argument
 from common.plumbing.lifecycle import network, positive, run_main, setup_logging, stop_on_signals
 
 
@@ -49,7 +50,8 @@ def add_selftest_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a hub's self-test: which hub of which hubs.toml, its devices' modes and parameters."""
     parser.add_argument("name", help="the hub, e.g. pi-tool")
     parser.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
-    parser.add_argument("--mode", choices=DEVICE_MODES, help="override every device's mode")
+    parser.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
+                        help="override every device's mode")
     parser.add_argument("--params-file", metavar="FILE",
                         help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
 
@@ -69,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
-                  seed: int = 0, mode: str | None = None, failure: dict[str, float] | None = None,
+                  seed: int = 0, mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
                   overrides: Mapping[str, Mapping[str, Any]] | None = None, certs: str | None = None) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
@@ -95,7 +97,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     return 0
 
 
-async def run_selftest(config_path: str, hub: str, *, mode: str | None = None,
+async def run_selftest(config_path: str, hub: str, *, mode: DeviceMode | None = None,
                        overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
     from common.wire.selftest_report import format_report
     from hubs.factory import build_drivers

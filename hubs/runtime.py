@@ -18,11 +18,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
-
-import msgspec
 
 from common.bus.protocol import Bus, Request
 from common.model import Kind, Model, Value
@@ -30,7 +27,17 @@ from common.plumbing.sdnotify import Notifier
 from common.plumbing.tasks import cancel_and_wait
 from common.wire.ctl import StateSnapshot
 from common.wire.keys import station_keys
-from common.wire.messages import Codec, DomainError, HubStatus, MessageError, ModelMismatch, decode, encode
+from common.wire.messages import (
+    Codec,
+    CommandMessage,
+    DomainError,
+    HubStatus,
+    MessageError,
+    ModelMismatch,
+    StateMessage,
+    decode,
+    encode,
+)
 
 from .authority import Authority
 from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
@@ -48,7 +55,7 @@ class ResourceSlot:
     name: str
     driver: Driver
     codec: Codec
-    mirror: msgspec.Struct | None = None
+    mirror: CommandMessage | None = None
     last_command_at: float | None = None
     status: HubStatus = HubStatus.NO_COMMAND  # what became of the commands
     detail: str = ""
@@ -167,12 +174,12 @@ class HubRuntime:
             self._publish(slot)
 
     @staticmethod
-    def _is_older(slot: ResourceSlot, command: Any) -> bool:
+    def _is_older(slot: ResourceSlot, command: CommandMessage) -> bool:
         # Ordered per (controller, epoch): a new holder's first command is never older.
-        mirror: Any = slot.mirror
+        mirror = slot.mirror
         if mirror is None or (mirror.controller, mirror.epoch) != (command.controller, command.epoch):
             return False
-        return bool(command.seq < mirror.seq)
+        return command.seq < mirror.seq
 
     async def _drive_safe_state(self, slot: ResourceSlot, status: HubStatus, detail: str) -> None:
         # The driver stops and drives what it calls safe; nothing else is written (re-writing the last
@@ -187,8 +194,8 @@ class HubRuntime:
             log.exception("hub %s: could not drive the safe state of %s", self.hub, slot.name)
             slot.status, slot.detail = HubStatus.ERROR, f"safe state failed: {exc}"
             return
-        if slot.mirror is not None and applied:
-            mirror: Any = slot.mirror
+        mirror = slot.mirror
+        if mirror is not None and applied:
             try:  # checked like a command: a driver's slip must not put a value outside its domain on the wire
                 slot.mirror = slot.codec.command({**slot.codec.values(mirror), **applied}, seq=mirror.seq,
                                                  controller=mirror.controller, epoch=mirror.epoch,
@@ -217,10 +224,11 @@ class HubRuntime:
         codecs = {r: Codec(self.model.resource_by_name[r]) for r in wanted}
         for resource, paths in wanted.items():
             kinds = {self.model.var(p).kind for p in paths}
+            codec = codecs[resource]
             if Kind.MEASURED in kinds:
-                subscriptions.append(self._follow(resource, codecs[resource], "state"))
+                subscriptions.append(self._follow(self.keys.state(resource), codec, codec.decode_state))
             if Kind.COMMAND in kinds:
-                subscriptions.append(self._follow(resource, codecs[resource], "cmd"))
+                subscriptions.append(self._follow(self.keys.cmd(resource), codec, codec.decode_command))
         await asyncio.gather(*subscriptions)
 
     async def _follow_estimated(self, paths: set[str]) -> None:
@@ -234,12 +242,13 @@ class HubRuntime:
             if values:
                 self._observed(values, snapshot.time)
 
-    async def _follow(self, resource: str, codec: Codec, what: str) -> None:
-        key = self.keys.state(resource) if what == "state" else self.keys.cmd(resource)
+    async def _follow(self, key: str, codec: Codec,
+                      decode_message: Callable[[bytes], CommandMessage | StateMessage]) -> None:
+        """Another resource's states or commands (`key`, read by `decode_message`): their values, to the
+        drivers that observe them."""
         async for sample in self.bus.subscribe(key):
             try:
-                message = codec.decode_state(sample.payload) if what == "state" else codec.decode_command(
-                    sample.payload)
+                message = decode_message(sample.payload)
             except MessageError as exc:
                 log.debug("hub %s: ignored %s: %s", self.hub, sample.key, exc)
                 continue

@@ -8,6 +8,7 @@ import pytest
 
 from common.config.hostnames import host_problem
 from common.config.hubs_toml import ConfigError, KeyLines, StationConfig, check_against_model, load_config, parse_config
+from common.config.modes import DeviceMode, NetworkMode, SecurityMode
 from common.model import Model, Resource, command, measured
 
 REPO_FILE = Path(__file__).resolve().parent.parent / "hubs.toml"
@@ -92,7 +93,8 @@ def test_a_good_file() -> None:
     assert isinstance(config, StationConfig)
     hub = config.hubs["pi-tool"]
     assert (hub.host, hub.rate_hz, hub.command_timeout_s, hub.ssh_user) == ("pi-tool", 50.0, 1.0, "pi")
-    assert config.device("rfid").mode == "sim"
+    assert config.device("rfid").mode is DeviceMode.SIM and config.device("nr").mode is DeviceMode.EMULATE
+    assert config.network.mode is NetworkMode.PEER and config.security.mode is SecurityMode.INSECURE
     assert config.device("nr").line == line_of(GOOD, "[hubs.pi-tool.devices.nr]")
     assert config.controller.command_rate_hz == 10.0
     net = config.network_for("pi-tool")

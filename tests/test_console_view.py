@@ -6,6 +6,7 @@ import pytest
 from textual.app import App, ComposeResult
 
 from common.config.hubs_toml import load_station
+from common.config.modes import DeviceMode
 from common.model import Kind, OperationState
 from common.wire.ctl import (
     ConsoleEvent,
@@ -196,7 +197,7 @@ def test_console_finds_the_controller_from_hubs_toml_and_parses_its_options() ->
     config, model = load_station(ROOT / "hubs.toml")
     info = StationInfo.from_station(config, model)
     assert info.default_connect == ("tcp/127.0.0.1:7447",)  # the controller listens on 0.0.0.0:7447
-    assert info.kinds["nr.run_c"] is Kind.COMMAND and info.modes["nr"] == "emulate"
+    assert info.kinds["nr.run_c"] is Kind.COMMAND and info.modes["nr"] is DeviceMode.EMULATE
     assert info.goals["TightenBolt7"] == "engine.bolt7_e == tightened"
     args = build_parser().parse_args(["console", "--connect", "tcp/decs.local:7447", "--listen", "none"])
     assert (args.connect, args.listen, args.config) == (["tcp/decs.local:7447"], "none", "hubs.toml")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-from typing import Any
 
 import msgspec
 import pytest
@@ -12,14 +11,18 @@ from hypothesis import strategies as st
 
 from common.model import Domain, Resource, Value, Variable, command, estimated, measured
 from common.wire.messages import (
+    COMMAND_ENVELOPE,
     SCHEMA,
+    STATE_ENVELOPE,
     Codec,
+    CommandMessage,
     DomainError,
     HubStatus,
     Message,
     MessageError,
     ModelMismatch,
     SchemaMismatch,
+    StateMessage,
     codecs_for,
     decode,
     encode,
@@ -66,9 +69,8 @@ seqs = st.integers(min_value=0, max_value=2**63 - 1)
 times = st.floats(allow_nan=False, allow_infinity=False)
 
 
-def a_command(codec: Codec, seq: int = 1, **overrides: Value) -> Any:
-    # Any: the command struct is generated from the resource's model; its fields have no static type.
-    values: dict[str, Value] = {v.name: v.initial for v in codec.commands} | overrides
+def a_command(codec: Codec, seq: int = 1, **overrides: object) -> CommandMessage:
+    values = {v.name: v.initial for v in codec.commands} | overrides
     return codec.command(values, seq=seq, controller="decs")
 
 
@@ -103,7 +105,7 @@ def test_values_by_path_and_unknown_measurements() -> None:
     codec = CODECS["nr"]
     cmd = codec.command({"nr.run_c": True}, seq=7, controller="decs")
     assert codec.values(cmd, paths=True) == {"nr.run_c": True}
-    state = codec.state({"nr.run_m": True}, status="ok", seq=1, hub="pi-tool", mirror=cmd)
+    state = codec.state({"nr.run_m": True}, status=HubStatus.OK, seq=1, hub="pi-tool", mirror=cmd)
     assert codec.values(state) == {"run_m": True, "tqr_m": None, "fail_m": None}
     assert codec.decode_state(codec.encode_state(state)).mirror.seq == 7
 
@@ -113,9 +115,68 @@ def test_every_resource_of_the_reference_station_round_trips() -> None:
     model = stations.build_model()
     for name, codec in codecs_for(model.resources).items():
         cmd = a_command(codec, seq=3)
-        state = codec.state({v.name: v.initial for v in codec.measured}, status="ok", seq=4, hub=name, mirror=cmd)
+        state = codec.state({v.name: v.initial for v in codec.measured}, status=HubStatus.OK, seq=4, hub=name,
+                            mirror=cmd)
         assert codec.decode_state(codec.encode_state(state)) == state
         assert codec.decode_command(codec.encode_command(cmd)) == cmd
+
+
+# --- the wire format and the typed header --------------------------------------------------------
+# Encoded by the build before the header became `CommandMessage`/`StateMessage` (a command of epoch 3,
+# seq 7; a state in safe_state mirroring it): the bytes on the wire must not change.
+RECORDED_WIRE = {
+    "nr": ("87a6736368656d6102aa6d6f64656c5f68617368b032323133636530383561393733636234a572756e5f63c2a373657107aa"
+           "636f6e74726f6c6c6572a464656373a565706f636803a474696d65cb41d954fc40100000",
+           "8ba6736368656d6102aa6d6f64656c5f68617368b032323133636530383561393733636234a572756e5f6dc2a57471725f6d"
+           "c2a66661696c5f6dc2a66d6972726f7287a6736368656d6102aa6d6f64656c5f68617368b03232313363653038356139373363"
+           "6234a572756e5f63c2a373657107aa636f6e74726f6c6c6572a464656373a565706f636803a474696d65cb41d954fc40100000"
+           "a6737461747573aa736166655f7374617465a664657461696cb76e6f20636f6d6d616e642077697468696e20312e302073a373"
+           "657129a474696d65cb41d954fc40600000a3687562a770692d746f6f6c"),
+    "ur": ("88a6736368656d6102aa6d6f64656c5f68617368b037373766663532313935313830623136a97265665f706f735f63a4686f"
+           "6d65a773706565645f6301a373657107aa636f6e74726f6c6c6572a464656373a565706f636803a474696d65cb41d954fc4010"
+           "0000",
+           "8ba6736368656d6102aa6d6f64656c5f68617368b037373766663532313935313830623136a5706f735f6da4686f6d65ab7072"
+           "6f745f73746f705f6dc2a66c6f61645f6dfea66d6972726f7288a6736368656d6102aa6d6f64656c5f68617368b03737376666"
+           "3532313935313830623136a97265665f706f735f63a4686f6d65a773706565645f6301a373657107aa636f6e74726f6c6c6572"
+           "a464656373a565706f636803a474696d65cb41d954fc40100000a6737461747573aa736166655f7374617465a664657461696c"
+           "b76e6f20636f6d6d616e642077697468696e20312e302073a373657129a474696d65cb41d954fc40600000a3687562a770692d"
+           "746f6f6c"),
+}
+
+
+def recorded_pair(codec: Codec) -> tuple[CommandMessage, StateMessage]:
+    command = codec.command({v.name: v.initial for v in codec.commands}, seq=7, controller="decs", epoch=3,
+                            time=1700000000.25)
+    state = codec.state({v.name: v.initial for v in codec.measured}, status=HubStatus.SAFE_STATE, seq=41,
+                        hub="pi-tool", mirror=command, detail="no command within 1.0 s", time=1700000001.5)
+    return command, state
+
+
+@pytest.mark.parametrize("name", list(RECORDED_WIRE))
+def test_messages_recorded_before_the_typed_header_encode_and_decode_the_same(name: str) -> None:
+    codec = CODECS[name]
+    command_hex, state_hex = RECORDED_WIRE[name]
+    command, state = recorded_pair(codec)
+    assert codec.encode_command(command).hex() == command_hex
+    assert codec.encode_state(state).hex() == state_hex
+    assert codec.decode_command(bytes.fromhex(command_hex)) == command
+    decoded = codec.decode_state(bytes.fromhex(state_hex))
+    assert decoded == state
+    assert decoded.status is HubStatus.SAFE_STATE and decoded.mirror is not None
+    assert (decoded.mirror.seq, decoded.mirror.controller, decoded.mirror.epoch) == (7, "decs", 3)
+
+
+def header_of(protocol: type) -> set[str]:
+    return {name for name, member in vars(protocol).items() if isinstance(member, property)}
+
+
+@pytest.mark.parametrize("codec", CODECS.values(), ids=list(CODECS))
+def test_every_generated_struct_has_the_typed_header(codec: Codec) -> None:
+    command, state = recorded_pair(codec)
+    assert isinstance(command, CommandMessage) and isinstance(state, StateMessage)
+    # The protocols name exactly the envelope fields the codec adds around the variables.
+    assert header_of(CommandMessage) == set(COMMAND_ENVELOPE) <= set(codec.Command.__struct_fields__)
+    assert header_of(StateMessage) == set(STATE_ENVELOPE) <= set(codec.State.__struct_fields__)
 
 
 # --- building checks -----------------------------------------------------------------------
@@ -129,9 +190,9 @@ def test_builders_check_domains_and_names() -> None:
     with pytest.raises(MessageError, match="no command variable 'tool_e'"):
         a_command(codec, tool_e="none")
     with pytest.raises(DomainError, match=r"ur\.load_m = 7"):
-        codec.state({"load_m": 7}, status="ok", seq=1, hub="h")
+        codec.state({"load_m": 7}, status=HubStatus.OK, seq=1, hub="h")
     with pytest.raises(MessageError, match="mirror must be a UrCommand"):
-        codec.state({}, status="ok", seq=1, hub="h", mirror=a_command(CODECS["nr"]))
+        codec.state({}, status=HubStatus.OK, seq=1, hub="h", mirror=a_command(CODECS["nr"]))
 
 
 def test_reserved_field_names_are_refused() -> None:
@@ -169,8 +230,7 @@ def test_out_of_domain_command_is_detected(resource: str, field: str, value: obj
 
 def test_out_of_domain_state_and_mirror_are_detected() -> None:
     codec = CODECS["ur"]
-    # Any: the state struct is generated from the resource's model; its fields have no static type.
-    good: Any = codec.state({"pos_m": "home"}, status="ok", seq=1, hub="ur10", mirror=a_command(codec))
+    good = codec.state({"pos_m": "home"}, status=HubStatus.OK, seq=1, hub="ur10", mirror=a_command(codec))
     bad = msgspec.structs.replace(good, pos_m="bolt9")
     with pytest.raises(DomainError, match=r"ur\.pos_m = 'bolt9'"):
         codec.decode_state(codec.encode_state(bad))
@@ -195,7 +255,7 @@ def test_hub_and_controller_from_different_models_refuse_each_other() -> None:
     message = str(caught.value)
     assert "resource ur" in message and controller.model_hash in message and hub.model_hash in message
     assert (caught.value.local, caught.value.remote) == (hub.model_hash, controller.model_hash)
-    state = hub.state({}, status="ok", seq=1, hub="ur10")
+    state = hub.state({}, status=HubStatus.OK, seq=1, hub="ur10")
     with pytest.raises(ModelMismatch, match=f"model hash {hub.model_hash}, ours {controller.model_hash}"):
         controller.decode_state(hub.encode_state(state))
 
@@ -214,7 +274,7 @@ def test_schema_mismatch_names_both_versions() -> None:
         raw = msgspec.to_builtins(a_command(codec)) | {"schema": schema}
         with pytest.raises(SchemaMismatch, match=f"resource nr: command has message schema {schema!r}"):
             codec.decode_command(msgspec.msgpack.encode(raw))
-    state = msgspec.to_builtins(codec.state({}, status="ok", seq=1, hub="h", mirror=a_command(codec)))
+    state = msgspec.to_builtins(codec.state({}, status=HubStatus.OK, seq=1, hub="h", mirror=a_command(codec)))
     state["mirror"]["schema"] = SCHEMA + 1
     with pytest.raises(SchemaMismatch, match="state \\(mirror\\)"):
         codec.decode_state(msgspec.msgpack.encode(state))
@@ -235,7 +295,7 @@ def test_model_hash_is_stable() -> None:
 
 def test_a_state_is_not_a_command() -> None:
     codec = CODECS["nr"]
-    state = codec.encode_state(codec.state({}, status="ok", seq=1, hub="h"))
+    state = codec.encode_state(codec.state({}, status=HubStatus.OK, seq=1, hub="h"))
     with pytest.raises(MessageError, match="this is a state message"):
         codec.decode_command(state)
     with pytest.raises(MessageError, match="this is a command message"):
@@ -247,7 +307,7 @@ def test_mistyped_envelope_field_is_named() -> None:
     raw = msgspec.to_builtins(a_command(codec)) | {"seq": "7"}
     with pytest.raises(MessageError, match=r"Expected `int`, got `str` - at `\$.seq`"):
         codec.decode_command(msgspec.msgpack.encode(raw))
-    raw = msgspec.to_builtins(codec.state({}, status="ok", seq=1, hub="h")) | {"status": "sleepy"}
+    raw = msgspec.to_builtins(codec.state({}, status=HubStatus.OK, seq=1, hub="h")) | {"status": "sleepy"}
     with pytest.raises(MessageError, match=r"\$.status"):
         codec.decode_state(msgspec.msgpack.encode(raw))
 
@@ -281,7 +341,7 @@ msgpack_values = st.recursive(
 def test_valid_messages_with_a_field_replaced_or_removed(data: st.DataObject, name: str) -> None:
     codec = CODECS[name]
     cmd = a_command(codec)
-    raw = msgspec.to_builtins(codec.state({}, status="ok", seq=1, hub="h", mirror=cmd))
+    raw = msgspec.to_builtins(codec.state({}, status=HubStatus.OK, seq=1, hub="h", mirror=cmd))
     raw_cmd = msgspec.to_builtins(cmd)
     for message in (raw, raw_cmd, raw["mirror"]):
         key = data.draw(st.sampled_from(sorted(message)))
@@ -303,7 +363,7 @@ def test_random_msgpack_gives_message_error(value: object, name: str) -> None:
 @given(data=st.data(), name=st.sampled_from(list(CODECS)))
 def test_truncated_payloads_give_message_error(data: st.DataObject, name: str) -> None:
     codec = CODECS[name]
-    payload = codec.encode_state(codec.state({}, status="ok", seq=1, hub="h", mirror=a_command(codec)))
+    payload = codec.encode_state(codec.state({}, status=HubStatus.OK, seq=1, hub="h", mirror=a_command(codec)))
     cut = data.draw(st.integers(min_value=0, max_value=len(payload) - 1))
     with pytest.raises(MessageError):
         codec.decode_state(payload[:cut])

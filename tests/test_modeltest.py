@@ -35,11 +35,11 @@ from common.resources import nutrunner
 from common.wire.keys import Keys, station_keys
 from common.wire.messages import Codec
 from deploy.modeltest import ModelTestFailed, Options, ResourceOracle, Target, model_based_test, run_model_test
-from deploy.modeltest.checker import EFFECT_NOT_OBSERVED, UNEXPLAINED_CHANGE, Checker, Observation, Violation
+from deploy.modeltest.checker import Checker, FindingKind, Observation, Violation
 from deploy.modeltest.cli import Refused, select_resources
 from deploy.modeltest.link import BusThread
 from deploy.modeltest.runner import ModelTest
-from deploy.modeltest.session import HOME, MODEL, SETTLE
+from deploy.modeltest.session import Source, Wait
 from tests.hub_process import HubProcess, running_hub
 
 pytest_plugins = ["deploy.modeltest.pytest_plugin"]
@@ -93,7 +93,7 @@ def test_an_outcome_seen_in_parts_must_complete_within_the_deadline() -> None:
     with pytest.raises(Violation) as caught:
         checker.check_time(0.9)
     finding = caught.value.finding
-    assert finding.kind == EFFECT_NOT_OBSERVED
+    assert finding.kind is FindingKind.EFFECT_NOT_OBSERVED
     assert (finding.effect, finding.guard, finding.expected) == (
         "nr.tighten.resetting", "!nr.run_c && nr.run_m", ("nr.tqr_m := false",))
     assert "nr.tqr_m=true" in finding.observed
@@ -133,7 +133,7 @@ def test_a_change_no_effect_allows_is_reported_with_what_was_enabled() -> None:
         checker.observe(obs(0.1, False, True, False, False))
         checker.check_time(0.2)
     finding = caught.value.finding
-    assert finding.kind == UNEXPLAINED_CHANGE
+    assert finding.kind is FindingKind.UNEXPLAINED_CHANGE
     assert "nr.tqr_m: false -> true" in finding.message
     assert "no effect of nr is enabled" in finding.details[0]
 
@@ -272,10 +272,10 @@ def test_the_papers_model_fails_on_the_real_nutrunner_with_a_minimal_sequence(qu
     failure = report.failure
     # run_c := true, wait for torque, run_c := false (the example's way home) -> tqr_m := false never comes
     assert [step.command for step in failure.steps] == [{"run_c": True}, {"run_c": False}], report.describe()
-    assert [step.wait for step in failure.steps] == [SETTLE, SETTLE]
-    assert failure.steps[0].source == MODEL and failure.steps[1].source == HOME
+    assert [step.wait for step in failure.steps] == [Wait.SETTLE, Wait.SETTLE]
+    assert failure.steps[0].source is Source.MODEL and failure.steps[1].source is Source.HOME
     assert failure.failed_at == 2
-    assert failure.finding.kind == EFFECT_NOT_OBSERVED
+    assert failure.finding.kind is FindingKind.EFFECT_NOT_OBSERVED
     assert failure.finding.effect == "nr.tighten.resetting"
     assert failure.finding.guard == "!nr.run_c && nr.run_m"
     assert failure.finding.expected == ("nr.tqr_m := false",)

@@ -12,11 +12,25 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import ConfigError, RecordingConfig, parse_config
+from common.model import OperationState
 from common.stations import load_model
 from common.wire.ctl import HubGone
+from common.wire.messages import HubStatus
 from controller.recording.hooks import RunRecorder, open_recording
 from controller.recording.reader import RecordingError, list_runs, open_run
-from controller.recording.schema import OperationRecord, RecordKind, RunMeta, StateRecord, TickRecord
+from controller.recording.schema import (
+    OperationRecord,
+    PlanAnswer,
+    PlanRecord,
+    RecordKind,
+    RunMeta,
+    RunMode,
+    RunOutcome,
+    StateRecord,
+    TickRecord,
+    WatchdogRecord,
+    WatchdogVerdict,
+)
 from controller.recording.writer import RECORDING_DIR_ENV, RecordingWriter
 from controller.stack import build_controller_stack
 
@@ -26,12 +40,35 @@ FAULT_MODEL = "tests.fault_station.model:build_model"
 
 def writer(directory: Path, **options: object) -> RecordingWriter:
     settings: dict[str, object] = {"max_bytes": 50 * MB, "keep": 10, "flush_s": 0.01} | options
-    return RecordingWriter(directory, RunMeta(station="s", mode="in-process", started=1000.0), **settings)  # type: ignore[arg-type]  # each test passes its keywords
+    return RecordingWriter(directory, RunMeta(station="s", mode=RunMode.IN_PROCESS, started=1000.0), **settings)  # type: ignore[arg-type]  # each test passes its keywords
+
+
+def test_the_vocabularies_of_a_recording_read_back_as_their_enums_in_the_words_recorded_before(
+        tmp_path: Path) -> None:
+    # The words on disk are those the recordings made before the enums hold (tests/replays too).
+    w = writer(tmp_path)
+    w.put(0.5, RecordKind.WATCHDOG, "nr", WatchdogRecord(verdict=WatchdogVerdict.UNHEALTHY, detail="stale"))
+    w.put(0.6, RecordKind.PLAN, "1", PlanRecord(generation=1, answer=PlanAnswer.IMPROVEMENT, taken=True, goals=[]))
+    w.put(0.7, RecordKind.OPERATION, "Tighten",
+          OperationRecord(before=OperationState.EXECUTING, after=OperationState.FINISHED))
+    w.update_meta(outcome=RunOutcome.STUCK)
+    w.close()
+
+    with open_run(w.path) as run:
+        assert run.meta.mode is RunMode.IN_PROCESS and run.meta.outcome is RunOutcome.STUCK
+        stored = dict(run._connections[0].execute("SELECT key, value FROM run_meta"))
+        assert (stored["mode"], stored["outcome"]) == ('"in-process"', '"stuck"')
+        verdict, plan, operation = (r.data for r in run.events())
+        assert isinstance(verdict, WatchdogRecord) and verdict.verdict is WatchdogVerdict.UNHEALTHY
+        assert isinstance(plan, PlanRecord) and plan.answer is PlanAnswer.IMPROVEMENT
+        assert isinstance(operation, OperationRecord) and operation.after is OperationState.FINISHED
+        data = [row[0] for row in run._connections[0].execute("SELECT data FROM events ORDER BY id")]
+        assert b"\xa9unhealthy" in data[0] and b"\xabimprovement" in data[1] and b"\xa8finished" in data[2]
 
 
 def test_records_are_read_back_in_order_with_their_types_and_filters(tmp_path: Path) -> None:
     w = writer(tmp_path)
-    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": True}, status="ok", mirror_seq=3))
+    w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": True}, status=HubStatus.OK, mirror_seq=3))
     w.put(0.5, RecordKind.TICK, "", TickRecord())
     w.put(1.0, RecordKind.EVENT, "hub_gone", HubGone("pi-tool"))
     w.put(2.0, RecordKind.OPERATION, "Tighten", OperationRecord(before="initial", after="executing"))
@@ -44,7 +81,7 @@ def test_records_are_read_back_in_order_with_their_types_and_filters(tmp_path: P
             (0.5, RecordKind.STATE, "nr"), (0.5, RecordKind.TICK, ""), (1.0, RecordKind.EVENT, "hub_gone"),
             (2.0, RecordKind.OPERATION, "Tighten")]
         (state,) = run.events(kinds=["state"])
-        assert state.data == StateRecord(values={"nr.run_m": True}, status="ok", mirror_seq=3)
+        assert state.data == StateRecord(values={"nr.run_m": True}, status=HubStatus.OK, mirror_seq=3)
         assert [r.data for r in run.events(kinds={RecordKind.EVENT}, since=0.9, until=1.1)] == [HubGone("pi-tool")]
         assert [r.kind for r in run.events(since=0.6, key="Tighten")] == [RecordKind.OPERATION]
         assert run.end_t == 2.0
@@ -154,7 +191,7 @@ def test_a_controller_killed_with_kill_9_leaves_a_readable_recording_of_what_it_
         time.sleep(0.05)                                          # writes, exits
     assert not path.with_name(path.name + "-wal").exists()  # completed: one self-contained file
     with open_run(path) as run:
-        assert run.meta.outcome == "running" and run.meta.requested == ["Tighten"]  # never closed
+        assert run.meta.outcome is RunOutcome.RUNNING and run.meta.requested == ["Tighten"]  # never closed
         assert [r.t for r in run.events()] == [float(i) for i in range(500)]
 
 
@@ -163,20 +200,22 @@ def test_an_ingested_batch_is_one_row_read_back_as_one_state_record_per_resource
     w = writer(tmp_path)
     recorder = RunRecorder(core, lambda: 0.5, w)
     recorder.ingested(core.ingest({"nr.run_m": True, "ur.pos_m": "at_bolt1", "nr.tqr_m": True}),
-                      [("nr", "ok", "", 3), ("ur", "ok", "", None)])
-    recorder.ingested(core.ingest({"nr.run_m": True}), [("nr", "ok", "", 3)])  # nothing changed: no row
-    recorder.ingested(core.ingest({"nr.run_m": False}), [("nr", "ok", "", 3), ("ur", "lost", "cable", None)])
+                      [("nr", HubStatus.OK, "", 3), ("ur", HubStatus.OK, "", None)])
+    recorder.ingested(core.ingest({"nr.run_m": True}), [("nr", HubStatus.OK, "", 3)])  # nothing changed: no row
+    recorder.ingested(core.ingest({"nr.run_m": False}),
+                      [("nr", HubStatus.OK, "", 3), ("ur", HubStatus.DEVICE_LOST, "cable", None)])
     w.close()
 
     with open_run(w.path) as run:
         assert run.meta.format == 2
         assert run._connections[0].execute("SELECT COUNT(*) FROM events").fetchone()[0] == 2
         assert [(r.key, r.data) for r in run.events()] == [
-            ("nr", StateRecord(values={"nr.run_m": True, "nr.tqr_m": True}, status="ok", mirror_seq=3)),
-            ("ur", StateRecord(values={"ur.pos_m": "at_bolt1"}, status="ok")),
-            ("nr", StateRecord(values={"nr.run_m": False}, status="ok", mirror_seq=3)),
-            ("ur", StateRecord(status="lost", detail="cable"))]
-        assert [r.data_as(StateRecord).status for r in run.events(kinds=["state"], key="ur")] == ["ok", "lost"]
+            ("nr", StateRecord(values={"nr.run_m": True, "nr.tqr_m": True}, status=HubStatus.OK, mirror_seq=3)),
+            ("ur", StateRecord(values={"ur.pos_m": "at_bolt1"}, status=HubStatus.OK)),
+            ("nr", StateRecord(values={"nr.run_m": False}, status=HubStatus.OK, mirror_seq=3)),
+            ("ur", StateRecord(status=HubStatus.DEVICE_LOST, detail="cable"))]
+        statuses = [r.data_as(StateRecord).status for r in run.events(kinds=["state"], key="ur")]
+        assert statuses == [HubStatus.OK, HubStatus.DEVICE_LOST]
         assert [r.kind for r in run.events(kinds=["tick"], key="ur")] == []
 
 

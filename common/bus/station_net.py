@@ -14,6 +14,7 @@ from pathlib import Path
 from common.bus.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
 from common.config.acl import access_control
 from common.config.hubs_toml import NetworkConfig, StationConfig
+from common.config.modes import SecurityMode
 from common.config.security import INSECURE_BANNER, Identity, cert_dir, tls_endpoints, tls_files
 from common.model import Model
 
@@ -21,7 +22,7 @@ from common.model import Model
 def tls_settings(config: StationConfig, model: Model, identity: Identity,
                  certs: str | Path | None = None) -> TlsSettings | None:
     """`identity`'s TLS files and the station's access control; None in insecure mode."""
-    if config.security.mode != "tls":
+    if config.security.mode != SecurityMode.TLS:
         return None
     files = tls_files(cert_dir(config, certs), identity)
     return TlsSettings(files.root_ca, files.certificate, files.private_key, access_control(config, model),
@@ -44,6 +45,6 @@ def station_zenoh_config(config: StationConfig, model: Model, identity: Identity
 
 def security_banner(config: StationConfig) -> str:
     """One line for a process's start: how its links are protected."""
-    if config.security.mode == "tls":
+    if config.security.mode == SecurityMode.TLS:
         return "links: mutual TLS with the station's certificates, access control on"
     return INSECURE_BANNER

@@ -15,9 +15,11 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import zenoh
+
+from common.config.modes import NetworkMode, words
 
 DEFAULT_LEASE_MS = 2000
 # The largest message a process accepts on its links (zenoh's default is 1 GiB); a larger one is
@@ -27,7 +29,6 @@ DEFAULT_MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 # goes out every 500 ms, so one lost keep-alive never expires a healthy link.
 KEEP_ALIVES_PER_LEASE = 4
 
-Mode = Literal["peer", "client"]
 ZenohConfig = zenoh.Config  # what `ZenohBus` opens; callers name the type without importing zenoh
 
 
@@ -75,7 +76,7 @@ class NetworkSettings(Protocol):
     def max_message_bytes(self) -> int: ...
 
 
-def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect: Iterable[str] = (),
+def zenoh_config(mode: NetworkMode | str = NetworkMode.PEER, listen: Iterable[str] = (), connect: Iterable[str] = (),
                  lease_ms: int = DEFAULT_LEASE_MS, *, gossip: bool = True,
                  tls: TlsSettings | None = None, max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> ZenohConfig:
     """A zenoh config for a statehub process.
@@ -92,21 +93,22 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
     * `tls`: mutual TLS and access control; every endpoint must then be a `tls/` one.
       Gossip only passes on locators over links that are already authenticated.
     """
-    if mode not in ("peer", "client"):
+    if mode not in words(NetworkMode):
         raise ValueError(f"zenoh mode must be 'peer' or 'client', not {mode!r}")
+    mode = NetworkMode(mode)
     if lease_ms < 100:
         raise ValueError(f"lease_ms={lease_ms} is too short to survive a scheduling hiccup (>= 100 ms)")
     listen, connect = list(listen), list(connect)
-    if mode == "client" and listen:
+    if mode == NetworkMode.CLIENT and listen:
         raise ValueError("a zenoh client cannot listen: remove `listen` or use mode 'peer'")
     if tls is not None and any(not e.startswith("tls/") for e in (*listen, *connect)):
         raise ValueError(f"with TLS every endpoint must be tls/: {', '.join(e for e in (*listen, *connect))}")
     config = zenoh.Config()
     settings: dict[str, Any] = {
-        "mode": mode,
+        "mode": mode.value,
         "connect/endpoints": connect,
         "scouting/multicast/enabled": False,
-        "scouting/gossip/enabled": gossip and mode == "peer",
+        "scouting/gossip/enabled": gossip and mode == NetworkMode.PEER,
         "transport/link/tx/lease": lease_ms,
         "transport/link/tx/keep_alive": KEEP_ALIVES_PER_LEASE,
         "transport/link/rx/max_message_size": max_message_bytes,
@@ -115,7 +117,7 @@ def zenoh_config(mode: Mode | str = "peer", listen: Iterable[str] = (), connect:
         "connect/exit_on_failure": False,
         "connect/retry": {"period_init_ms": 250, "period_max_ms": 2000, "period_increase_factor": 2},
     }
-    if mode == "peer":
+    if mode == NetworkMode.PEER:
         settings["listen/endpoints"] = listen
     if tls is not None:
         settings.update(tls.settings())
@@ -142,4 +144,4 @@ def loopback_peer(port: int, lease_ms: int = DEFAULT_LEASE_MS, *, listen: Iterab
 
 
 def is_client(config: ZenohConfig) -> bool:
-    return bool(json.loads(config.get_json("mode")) == "client")
+    return bool(json.loads(config.get_json("mode")) == NetworkMode.CLIENT)

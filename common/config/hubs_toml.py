@@ -61,11 +61,12 @@ differing from the model's.
 
 from __future__ import annotations
 
+import enum
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 
@@ -73,15 +74,13 @@ from common.bus.zenoh_config import DEFAULT_MAX_MESSAGE_BYTES
 from common.config.errors import ConfigError, ConfigProblem, toml_problem, toml_type
 from common.config.hostnames import host_problem, user_problem
 from common.config.keylines import KeyLines
+from common.config.modes import DeviceMode, NetworkMode, SecurityMode, words
 from common.model import Model
 from common.stations import ModelLoadError, is_file_reference, load_model, resolve_model_reference
 from common.wire.keys import Keys, station_keys
 from controller.recording.settings import RecordingConfig
 
 DEVICE_TYPES = ("nutrunner", "ur", "rsp", "dock", "lift", "mir", "agv", "rfid", "camera", "operator")
-DEVICE_MODES = ("emulate", "sim", "real")
-NETWORK_MODES = ("peer", "client")
-SECURITY_MODES = ("tls", "insecure")
 
 Hz = Annotated[float, msgspec.Meta(gt=0)]
 Seconds = Annotated[float, msgspec.Meta(gt=0)]
@@ -96,7 +95,7 @@ class StationSection(msgspec.Struct, frozen=True):
 
 
 class NetworkConfig(msgspec.Struct, frozen=True):
-    mode: Literal["peer", "client"] = "peer"
+    mode: NetworkMode = NetworkMode.PEER
     listen: list[str] = msgspec.field(default_factory=list)
     connect: list[str] = msgspec.field(default_factory=list)
     lease_ms: Annotated[int, msgspec.Meta(ge=100)] = 2000
@@ -105,7 +104,7 @@ class NetworkConfig(msgspec.Struct, frozen=True):
 
 class SecurityConfig(msgspec.Struct, frozen=True):
     """[security]: how the station's links are protected (common/config/security.py, docs/deployment.md)."""
-    mode: Literal["tls", "insecure"] = "insecure"
+    mode: SecurityMode = SecurityMode.INSECURE
     certs: str = ""  # certificate directory; "" = ~/.config/statehub/{station}/certs
     operators: list[str] = msgspec.field(default_factory=lambda: ["operator"])  # names of the operator role
     verify_names: bool = True  # a listener's certificate must name the host a process connects to
@@ -127,7 +126,7 @@ class ControllerConfig(msgspec.Struct, frozen=True):
 class DeviceConfig(msgspec.Struct, frozen=True):
     resource: str  # the table name: the resource in the station model
     type: str
-    mode: Literal["emulate", "sim", "real"] = "emulate"
+    mode: DeviceMode = DeviceMode.EMULATE
     params: dict[str, Any] = msgspec.field(default_factory=dict)  # the driver parameters
     line: int = 0  # where it is declared, for later error messages
 
@@ -197,7 +196,7 @@ class StationConfig(msgspec.Struct, frozen=True):
             raise KeyError(f"{self.path}: no hub named {process!r} (hubs: {', '.join(self.hubs)})")
         endpoint = f"tcp/127.0.0.1:{port}"
         controller = process == "controller"
-        return NetworkConfig(mode="peer", listen=[endpoint] if controller else ["tcp/127.0.0.1:0"],
+        return NetworkConfig(mode=NetworkMode.PEER, listen=[endpoint] if controller else ["tcp/127.0.0.1:0"],
                              connect=[] if controller else [endpoint], lease_ms=self.network.lease_ms,
                              max_message_bytes=self.network.max_message_bytes)
 
@@ -278,9 +277,8 @@ class _Checker:
 
 
 def _explain_type(exc: msgspec.ValidationError, value: object, ftype: object, key: str) -> str:
-    if key == "mode" and isinstance(value, str):
-        allowed = NETWORK_MODES if "peer" in str(ftype) else SECURITY_MODES if "tls" in str(ftype) else DEVICE_MODES
-        return f"unknown mode {value!r} (expected one of: {', '.join(allowed)})"
+    if isinstance(ftype, type) and issubclass(ftype, enum.StrEnum) and isinstance(value, str):
+        return f"unknown {key} {value!r} (expected one of: {', '.join(words(ftype))})"
     text = re.sub(r"\s*- at `\$[^`]*`", "", str(exc))
     return f"{text} (found {toml_type(value)} {value!r})"
 
@@ -324,7 +322,7 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
     table = checker.table(data.get("network", {}), ("network",))
     if table is not None:
         network = checker.section(NetworkConfig, table, ("network",))
-        if network is not None and network.mode == "client" and network.listen:
+        if network is not None and network.mode == NetworkMode.CLIENT and network.listen:
             checker.problem(("network", "listen"), "a zenoh client cannot listen: remove it or use mode 'peer'")
 
     if "controller" not in data:

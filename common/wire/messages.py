@@ -28,6 +28,10 @@ domain: hubs reject such commands and say so in their status) or plain
 `MessageError` (not MessagePack, missing or mistyped field). The fast path is one
 typed msgspec decode; only a failing payload is looked at again to explain why.
 
+Code that handles a resource's messages without knowing its variables reads their header
+through `CommandMessage` and `StateMessage` (protocols every generated struct satisfies) and
+their variables through `Codec.values`.
+
 `Message`, `encode` and `decode` cover the plain structs of `{station}/ctl/...`.
 """
 
@@ -38,7 +42,7 @@ import hashlib
 import json
 import time as _time
 from collections.abc import Iterable, Mapping
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, Protocol, TypeVar, cast, overload, runtime_checkable
 
 import msgspec
 
@@ -66,6 +70,58 @@ class HubStatus(enum.StrEnum):
     DEVICE_LOST = "device_lost"  # the device does not answer: measured values are None
     REJECTED = "rejected"  # the newest command was refused (out of domain, other model): `detail` says why
     ERROR = "error"  # the driver failed to apply the command: `detail` says why
+
+
+# --- the header of every resource's messages -------------------------------------------------
+# The structs are built per resource at runtime (`Codec`), with the header fields around the
+# variables in wire order (schema, model_hash, <variables>, seq, ...): a base Struct holding the
+# header would put its fields first and change the bytes on the wire. So the header is a protocol.
+
+@runtime_checkable
+class CommandMessage(Protocol):
+    """The header of a command (`Codec.Command`), whatever its resource: its variables are `Codec.values`."""
+
+    @property
+    def schema(self) -> int: ...
+    @property
+    def model_hash(self) -> str: ...
+    @property
+    def seq(self) -> int: ...  # ordered per (controller, epoch)
+    @property
+    def controller(self) -> str: ...  # the sender's id
+    @property
+    def epoch(self) -> int: ...  # the sender's hold on the station (common/wire/holder_token.py); 0: none persisted
+    @property
+    def time(self) -> float: ...  # when it was sent (wall clock)
+
+
+@runtime_checkable
+class StateMessage(Protocol):
+    """The header of a state (`Codec.State`), whatever its resource: its measured values are `Codec.values`."""
+
+    @property
+    def schema(self) -> int: ...
+    @property
+    def model_hash(self) -> str: ...
+    @property
+    def mirror(self) -> CommandMessage | None: ...  # the last command the hub applied, as received
+    @property
+    def status(self) -> HubStatus: ...
+    @property
+    def detail(self) -> str: ...  # why, when the status is not ok
+    @property
+    def seq(self) -> int: ...  # the hub's own count of the states it published
+    @property
+    def time(self) -> float: ...  # when it was published (wall clock)
+    @property
+    def hub(self) -> str: ...
+
+
+class MessageKind(enum.StrEnum):
+    """Which of a resource's two messages a payload is meant to be (the word names it in errors)."""
+
+    COMMAND = "command"
+    STATE = "state"
 
 
 # --- errors ------------------------------------------------------------------------------
@@ -244,7 +300,7 @@ class Codec:
         return result
 
     def command(self, values: Mapping[str, Value], *, seq: int, controller: str, epoch: int = 0,
-                time: float | None = None) -> msgspec.Struct:
+                time: float | None = None) -> CommandMessage:
         """A command with every command variable (keyed `run_c` or `nr.run_c`); checks the domains.
         `epoch` 0: a sender without a persisted hold on the station (a test, `hubctl modeltest`)."""
         given = self._values(values, self.commands, "command")
@@ -254,11 +310,12 @@ class Codec:
                                resource=self.resource)
         for v in self.commands:
             self._check_value(v, given[v.name], seq=seq, controller=controller)
-        return self.Command(schema=SCHEMA, model_hash=self.model_hash, seq=seq, controller=controller,
-                            epoch=epoch, time=_time.time() if time is None else time, **given)
+        return cast(CommandMessage, self.Command(
+            schema=SCHEMA, model_hash=self.model_hash, seq=seq, controller=controller, epoch=epoch,
+            time=_time.time() if time is None else time, **given))
 
-    def state(self, values: Mapping[str, Value | None], *, status: HubStatus | str, seq: int, hub: str,
-              mirror: msgspec.Struct | None = None, detail: str = "", time: float | None = None) -> msgspec.Struct:
+    def state(self, values: Mapping[str, Value | None], *, status: HubStatus, seq: int, hub: str,
+              mirror: CommandMessage | None = None, detail: str = "", time: float | None = None) -> StateMessage:
         """A state message; a measured variable left out (or None) is unknown. Checks the domains."""
         given = self._values(values, self.measured, "measured")
         for v in self.measured:
@@ -268,44 +325,50 @@ class Codec:
         if mirror is not None and not isinstance(mirror, self.Command):
             raise MessageError(f"resource {self.resource}: mirror must be a {self.Command.__name__}, "
                                f"not {type(mirror).__name__}", resource=self.resource)
-        return self.State(schema=SCHEMA, model_hash=self.model_hash, mirror=mirror, status=HubStatus(status),
-                          detail=detail, seq=seq, hub=hub, time=_time.time() if time is None else time,
-                          **measured)
+        # HubStatus(): a status given as its word is stored as the member a decoded state would hold.
+        return cast(StateMessage, self.State(
+            schema=SCHEMA, model_hash=self.model_hash, mirror=mirror, status=HubStatus(status), detail=detail,
+            seq=seq, hub=hub, time=_time.time() if time is None else time, **measured))
 
-    def values(self, message: msgspec.Struct, *, paths: bool = False) -> dict[str, Value | None]:
-        """The variables of a command (command vars) or a state (measured vars, None = unknown),
-        keyed by short name, or by path (`nr.run_c`) with `paths=True`."""
+    @overload
+    def values(self, message: CommandMessage, *, paths: bool = False) -> dict[str, Value]: ...
+    @overload
+    def values(self, message: StateMessage, *, paths: bool = False) -> dict[str, Value | None]: ...
+
+    def values(self, message: CommandMessage | StateMessage, *, paths: bool = False) -> Mapping[str, Value | None]:
+        """The variables of a command (command vars, every one known) or a state (measured vars,
+        None = unknown), keyed by short name, or by path (`nr.run_c`) with `paths=True`."""
         variables = self.commands if isinstance(message, self.Command) else self.measured
         if not isinstance(message, self.Command | self.State):
             raise TypeError(f"not a message of resource {self.resource}: {type(message).__name__}")
         return {(v.path if paths else v.name): getattr(message, v.name) for v in variables}
 
     # -- encoding ------------------------------------------------------------------------
-    def encode_command(self, command: msgspec.Struct) -> bytes:
+    def encode_command(self, command: CommandMessage) -> bytes:
         return self._encoder.encode(command)
 
-    def encode_state(self, state: msgspec.Struct) -> bytes:
+    def encode_state(self, state: StateMessage) -> bytes:
         return self._encoder.encode(state)
 
-    def decode_command(self, data: bytes | bytearray | memoryview) -> Any:
+    def decode_command(self, data: bytes | bytearray | memoryview) -> CommandMessage:
         """The Command in `data`; raises MessageError (DomainError: a value out of its domain)."""
-        self._check_size(data, self.max_command_bytes, "command")
+        self._check_size(data, self.max_command_bytes, MessageKind.COMMAND)
         try:
-            command = self._command_decoder.decode(data)
+            command = cast(CommandMessage, self._command_decoder.decode(data))
         except Exception:
-            raise self._explain(data, "command") from None
+            raise self._explain(data, MessageKind.COMMAND) from None
         self._check_envelope(command, "command")
         if self._unchecked_commands:
             self._check_unchecked(command, self._unchecked_commands, "")
         return command
 
-    def decode_state(self, data: bytes | bytearray | memoryview) -> Any:
+    def decode_state(self, data: bytes | bytearray | memoryview) -> StateMessage:
         """The State in `data`; raises MessageError."""
-        self._check_size(data, self.max_state_bytes, "state")
+        self._check_size(data, self.max_state_bytes, MessageKind.STATE)
         try:
-            state = self._state_decoder.decode(data)
+            state = cast(StateMessage, self._state_decoder.decode(data))
         except Exception:
-            raise self._explain(data, "state") from None
+            raise self._explain(data, MessageKind.STATE) from None
         self._check_envelope(state, "state")
         if state.mirror is not None:
             self._check_envelope(state.mirror, "state (mirror)")
@@ -318,7 +381,7 @@ class Codec:
     def sender(self, data: bytes | bytearray | memoryview) -> CommandSender:
         """Who claims to have sent the command in `data` (size-checked, nothing else decoded):
         a hub refuses a command of anyone but the station's holder before decoding it."""
-        self._check_size(data, self.max_command_bytes, "command")
+        self._check_size(data, self.max_command_bytes, MessageKind.COMMAND)
         try:
             return _sender_decoder.decode(data)
         except Exception as exc:
@@ -326,12 +389,12 @@ class Codec:
                                resource=self.resource) from None
 
     # -- checks and explanations -------------------------------------------------------------
-    def _check_size(self, data: bytes | bytearray | memoryview, limit: int, what: str) -> None:
+    def _check_size(self, data: bytes | bytearray | memoryview, limit: int, what: MessageKind) -> None:
         if len(data) > limit:
             raise OversizedPayload(f"resource {self.resource}: {what} of {len(data)} bytes, more than any valid "
                                    f"{what} of this resource ({limit} bytes): not decoded", resource=self.resource)
 
-    def _check_envelope(self, message: Any, what: str) -> None:
+    def _check_envelope(self, message: CommandMessage | StateMessage, what: str) -> None:
         if message.schema != SCHEMA:
             raise self._schema_error(what, message.schema)
         if message.model_hash != self.model_hash:
@@ -348,14 +411,15 @@ class Codec:
             f"ours {self.model_hash}): hub and controller must run the same resource model",
             resource=self.resource, local=self.model_hash, remote=remote)
 
-    def _check_unchecked(self, message: Any, variables: list[Variable], where: str) -> None:
+    def _check_unchecked(self, message: CommandMessage | StateMessage, variables: list[Variable],
+                         where: str) -> None:
         for v in variables:
             value = getattr(message, v.name)
             if value is not None or v.kind is Kind.COMMAND:
                 self._check_value(v, value, seq=getattr(message, "seq", None),
                                   controller=getattr(message, "controller", None), where=where)
 
-    def _explain(self, data: object, what: str) -> MessageError:
+    def _explain(self, data: object, what: MessageKind) -> MessageError:
         """Why a payload failed the typed decode, as precisely as it can be said."""
         try:
             return self._diagnose(data, what)
@@ -365,7 +429,7 @@ class Codec:
             return MessageError(f"resource {self.resource}: unreadable {what}: {type(exc).__name__}: {exc}",
                                 resource=self.resource)
 
-    def _diagnose(self, data: object, what: str) -> MessageError:
+    def _diagnose(self, data: object, what: MessageKind) -> MessageError:
         prefix = f"resource {self.resource}: {what}"
         try:
             raw = msgspec.msgpack.decode(data)  # type: ignore[call-overload]
@@ -381,15 +445,15 @@ class Codec:
             if "model_hash" not in raw:
                 return MessageError(f"{prefix} has no model_hash", resource=self.resource)
             return self._model_error(what, raw["model_hash"])
-        if what == "command" and "hub" in raw and "status" in raw:
+        if what is MessageKind.COMMAND and "hub" in raw and "status" in raw:
             return MessageError(f"{prefix}: this is a state message (it has `hub` and `status`)",
                                 resource=self.resource)
-        if what == "state" and "controller" in raw and "hub" not in raw:
+        if what is MessageKind.STATE and "controller" in raw and "hub" not in raw:
             return MessageError(f"{prefix}: this is a command message (it has `controller`, no `hub`)",
                                 resource=self.resource)
-        variables = self.commands if what == "command" else self.measured
+        variables = self.commands if what is MessageKind.COMMAND else self.measured
         self._diagnose_values(raw, variables, what, "")
-        if what == "state" and isinstance(raw.get("mirror"), dict):
+        if what is MessageKind.STATE and isinstance(raw.get("mirror"), dict):
             mirror = raw["mirror"]
             if mirror.get("schema") != SCHEMA or isinstance(mirror.get("schema"), bool):
                 return self._schema_error("state (mirror)", mirror.get("schema"))
@@ -398,7 +462,7 @@ class Codec:
             self._diagnose_values(mirror, self.commands, "state", " (mirror)")
         # The values are fine: say what msgspec says (it names the field, e.g. "at `$.seq`").
         try:
-            msgspec.convert(raw, self.Command if what == "command" else self.State, strict=True)
+            msgspec.convert(raw, self.Command if what is MessageKind.COMMAND else self.State, strict=True)
         except msgspec.ValidationError as exc:
             return MessageError(f"{prefix}: {exc}", resource=self.resource)
         return MessageError(f"{prefix} is not a valid {what} message", resource=self.resource)

@@ -36,6 +36,7 @@ from textual.css.query import NoMatches
 from textual.widgets import Footer, Header, Input, RichLog, Static
 from textual.worker import Worker, WorkerState
 
+from common.config.modes import NetworkMode
 from common.model import Model, OperationState
 from common.wire.ctl import ConsoleReply, ConsoleRequest, StatusMessage
 from controller.recording.writer import recording_dir
@@ -413,7 +414,7 @@ def run_console(config: str, connect: Sequence[str] = (), listen: Sequence[str] 
     station, model = load_station(config)
     info = StationInfo.from_station(station, model)
     endpoints = list(connect) or list(info.default_connect)
-    network = NetworkConfig(mode="peer", listen=list(listen), connect=endpoints, lease_ms=info.lease_ms)
+    network = NetworkConfig(mode=NetworkMode.PEER, listen=list(listen), connect=endpoints, lease_ms=info.lease_ms)
     zconfig = station_zenoh_config(station, model, operator_identity(station, operator), network, certs=certs)
     link = ConsoleLink(info.station, endpoints, listen=listen, lease_ms=info.lease_ms, zconfig=zconfig)
     app = ConsoleApp(info, link)

@@ -16,7 +16,7 @@ from rich.text import Text
 
 from common.model import Model
 from controller.recording.reader import list_runs, open_run
-from controller.timeline.model import Span, Timeline, build_timeline
+from controller.timeline.model import MarkerKind, Span, Timeline, build_timeline
 
 NAME_WIDTH = 18
 PLANS_SHOWN = 6
@@ -68,12 +68,13 @@ def gantt_lines(timeline: Timeline, width: int) -> list[Text]:
             rows[fault.lane][min(cells - 1, int(fault.t / per_cell))] = ("X", "bold red")
     header: list[Cell] = [BLANK] * cells
     for marker in timeline.plans:
-        header[min(cells - 1, int(marker.t / per_cell))] = ("|", "") if marker.kind == "plan" else ("▼", "dark_orange")
+        mark: Cell = ("|", "") if marker.kind is MarkerKind.PLAN else ("▼", "dark_orange")
+        header[min(cells - 1, int(marker.t / per_cell))] = mark
     lines = [_line(f"plans, {timeline.end:.0f} s", header)]
     lines += [_line(lane, row) for lane, row in rows.items()]
     for number, marker in list(enumerate(timeline.plans, start=1))[-PLANS_SHOWN:]:
         lines.append(Text(f"{number:>3}  {marker.t:7.1f} s  {marker.kind}: {marker.text}",
-                          "dark_orange" if marker.kind == "replan" else ""))
+                          "dark_orange" if marker.kind is MarkerKind.REPLAN else ""))
     lines += [Text(f"  fault {m.t:7.1f} s  {m.text}", "bold red") for m in timeline.faults[-PLANS_SHOWN:]]
     if timeline.note:
         lines.append(Text(timeline.note, "yellow"))

@@ -28,6 +28,7 @@ import msgspec
 from common.bus.protocol import Bus, BusError, Sample, Subscription
 from common.bus.zenoh_bus import ZenohBus
 from common.bus.zenoh_config import ZenohConfig, zenoh_config
+from common.config.modes import NetworkMode
 from common.wire.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
 from common.wire.keys import station_keys
 from common.wire.messages import Message, MessageError, decode, encode
@@ -70,7 +71,7 @@ class ConsoleLink:
         """`zconfig`: the session's config when the station is secured (common/bus/station_net.py)."""
         self.keys = station_keys(station)
         self.connect = list(connect)
-        self.config = zconfig or zenoh_config("peer", listen=listen, connect=connect, lease_ms=lease_ms)
+        self.config = zconfig or zenoh_config(NetworkMode.PEER, listen=listen, connect=connect, lease_ms=lease_ms)
         self.status: StatusMessage | None = None
         self.plan: PlanDetails | None = None
         self.snapshot: StateSnapshot | None = None

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from common.config.hubs_toml import StationConfig
+from common.config.modes import DeviceMode
 from common.model import Kind, Model
 
 
@@ -18,7 +19,7 @@ class StationInfo:
     station: str
     kinds: dict[str, Kind]  # variable path -> kind
     goals: dict[str, str] = field(default_factory=dict)  # operation -> its goal, in the model's notation
-    modes: dict[str, str] = field(default_factory=dict)  # resource -> emulate / sim / real
+    modes: dict[str, DeviceMode] = field(default_factory=dict)  # resource -> how its device runs
     lease_ms: int = 2000
     default_connect: tuple[str, ...] = ()  # where the controller listens, as seen from its own host
     recordings: str = ""  # [controller.recording] dir: where the controller records its runs (the timeline)

@@ -43,12 +43,12 @@ from __future__ import annotations
 
 import enum
 import hashlib
-from typing import Literal
 
 import msgspec
 
-from common.model import Model, Value
+from common.model import Model, OperationState, Value
 from common.wire.ctl import ConsoleEvent, ConsoleRequest
+from common.wire.messages import HubStatus
 
 FORMAT = 2  # bump on any incompatible change of the tables or of the structs below
 READABLE_FORMATS = (1, 2)  # format 1: per-state rows only, which format 2 still reads
@@ -86,13 +86,40 @@ class RecordKind(enum.StrEnum):
     EVENT = "event"
 
 
-Mode = Literal["up", "in-process", "service"]
-Outcome = Literal["finished", "stopped", "stuck", "running"]
+class RunMode(enum.StrEnum):
+    """How the recorded run was made."""
+
+    UP = "up"  # `hubctl up`: the station's processes over Zenoh on this machine
+    IN_PROCESS = "in-process"  # `hubctl up --in-process`: one process, virtual time, planning by counts
+    SERVICE = "service"  # the controller as a service (`hubctl controller`)
+
+
+class RunOutcome(enum.StrEnum):
+    """How the run ended (`RunMeta.outcome`)."""
+
+    FINISHED = "finished"  # every operation done
+    STOPPED = "stopped"  # stopped from outside (Ctrl-C, SIGTERM, a time limit)
+    STUCK = "stuck"  # no progress possible
+    RUNNING = "running"  # not ended: still running, or its controller was killed before writing its end
+
+
+class WatchdogVerdict(enum.StrEnum):
+    """What a `watchdog` record says of its resource."""
+
+    UNHEALTHY = "unhealthy"  # `detail`: why
+    RECOVERED = "recovered"
+
+
+class PlanAnswer(enum.StrEnum):
+    """Which of a request's answers a `plan` record is (the planner is anytime)."""
+
+    FIRST = "first"
+    IMPROVEMENT = "improvement"
 
 
 class RunMeta(msgspec.Struct, kw_only=True):
     """A run's description (`run_meta`); `ended`, `outcome` and the counts are written when it ends
-    (`outcome` stays "running" in a recording whose controller was killed)."""
+    (`outcome` stays RUNNING in a recording whose controller was killed)."""
 
     format: int = FORMAT
     run: str = ""  # the run's id, shared by its part files
@@ -101,13 +128,13 @@ class RunMeta(msgspec.Struct, kw_only=True):
     model: str = ""  # module:attribute
     model_hash: str = ""  # station_model_hash: a replay refuses another model
     config: str = ""  # hubs.toml path ("" in-process)
-    mode: Mode = "service"
+    mode: RunMode = RunMode.SERVICE
     seed: int | None = None  # of emulated outcomes (up, in-process)
     budget: dict[str, int] | None = None  # planner counts when they bound the search (in-process)
     requested: list[str] = msgspec.field(default_factory=list)  # operations requested at start
     started: float = 0.0  # wall clock (time.time())
     ended: float | None = None
-    outcome: Outcome = "running"
+    outcome: RunOutcome = RunOutcome.RUNNING
     operations_done: int = 0
     operations_total: int = 0
     plans: int = 0
@@ -120,12 +147,12 @@ class RunMeta(msgspec.Struct, kw_only=True):
 
 class StateRecord(msgspec.Struct, kw_only=True, omit_defaults=True):
     values: dict[str, Value] = msgspec.field(default_factory=dict)  # by variable path; changed ones only
-    status: str = ""  # the hub's HubStatus ("" in-process: no hub)
+    status: HubStatus | None = None  # None in-process: no hub
     detail: str = ""
     mirror_seq: int | None = None  # the seq of ours the hub mirrors
 
 
-HubState = tuple[str, str, str, int | None]  # resource, status, detail, mirrored seq of ours
+HubState = tuple[str, HubStatus, str, int | None]  # resource, status, detail, mirrored seq of ours
 
 
 class StatesRecord(msgspec.Struct, array_like=True):
@@ -188,7 +215,7 @@ class LivelinessRecord(msgspec.Struct, kw_only=True):
 
 
 class WatchdogRecord(msgspec.Struct, kw_only=True):
-    verdict: Literal["unhealthy", "recovered"]
+    verdict: WatchdogVerdict
     detail: str = ""
 
 
@@ -221,7 +248,7 @@ class StepRecord(msgspec.Struct, array_like=True):
 
 class PlanRecord(msgspec.Struct, kw_only=True):
     generation: int
-    answer: Literal["first", "improvement"]
+    answer: PlanAnswer
     taken: bool  # the controller adopted it (a late first answer or a longer improvement is not)
     goals: list[str]
     reason: str = ""  # the request's ReplanReason value
@@ -239,8 +266,8 @@ class PlanRecord(msgspec.Struct, kw_only=True):
 
 
 class OperationRecord(msgspec.Struct, kw_only=True, rename={"before": "from", "after": "to"}):
-    before: str  # OperationState values
-    after: str
+    before: OperationState
+    after: OperationState
 
 
 class RequestRecord(msgspec.Struct, kw_only=True):

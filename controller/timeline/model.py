@@ -19,22 +19,25 @@ time in `up --in-process`). render.py draws a Timeline with matplotlib; the cons
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from common.model import Model, Value
+from common.model import Model, OperationState, Value
 from common.model.compiled import CompiledModel
 from common.wire.ctl import Event
 from controller.recording.reader import Run
 from controller.recording.schema import (
     CommandRecord,
     OperationRecord,
+    PlanAnswer,
     PlanRecord,
     PlanRequestRecord,
     RecordKind,
     RestoreRecord,
     StateRecord,
     WatchdogRecord,
+    WatchdogVerdict,
 )
 
 READ = (RecordKind.RESTORE, RecordKind.STATE, RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST,
@@ -51,10 +54,18 @@ class Span:
     outcome: str = ""  # an ability: done, aborted or running; an operation: its state
 
 
+class MarkerKind(enum.StrEnum):
+    """What a marker on the timeline's time axis stands for (the word is shown beside it)."""
+
+    PLAN = "plan"  # the run's first plan request
+    REPLAN = "replan"  # every later one
+    FAULT = "fault"  # a fault in the controller's event log
+
+
 @dataclass(frozen=True)
 class Marker:
     t: float
-    kind: str  # "plan" (the first), "replan", "fault"
+    kind: MarkerKind
     text: str
     lane: str = ""  # the resource or operation it is about, if one
 
@@ -175,7 +186,7 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
         elif isinstance(data, OperationRecord):
             _operation(timeline, operation_open, record.key, data.after, t)
         elif isinstance(data, PlanRequestRecord):
-            kind = "plan" if not timeline.plans else "replan"
+            kind = MarkerKind.PLAN if not timeline.plans else MarkerKind.REPLAN
             text = data.reason + (f": {data.detail}" if data.detail else "")
             plan_markers[record.key] = len(timeline.plans)
             timeline.plans.append(Marker(t, kind, text))
@@ -185,7 +196,7 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
             _health(timeline, unhealthy_open, record.key, data, t)
         elif isinstance(data, Event) and data.fault:
             lane = getattr(data, "resource", "") or getattr(data, "hub", "")
-            timeline.faults.append(Marker(t, "fault", data.text, lane))
+            timeline.faults.append(Marker(t, MarkerKind.FAULT, data.text, lane))  # type: ignore[union-attr]
     for name, (state, began) in operation_open.items():
         timeline.operation_spans.append(Span(name, state, began, end, state))
     for resource, (began, reason) in unhealthy_open.items():
@@ -203,13 +214,13 @@ def _operation(timeline: Timeline, open_: dict[str, tuple[str, float]], name: st
     previous = open_.pop(name, None)
     if previous is not None:
         timeline.operation_spans.append(Span(name, previous[0], previous[1], t, previous[0]))
-    if state != "initial":
+    if state != OperationState.INITIAL:
         open_[name] = (state, t)
 
 
 def _answered(timeline: Timeline, at: int | None, data: PlanRecord) -> None:
     """The first answer to a request, said on its marker: how many steps, or why there is none."""
-    if at is None or data.answer != "first":
+    if at is None or data.answer != PlanAnswer.FIRST:
         return
     marker = timeline.plans[at]
     answer = f"{len(data.steps)} steps ({data.member})" if data.found else f"no plan: {data.no_plan}"
@@ -218,7 +229,7 @@ def _answered(timeline: Timeline, at: int | None, data: PlanRecord) -> None:
 
 def _health(timeline: Timeline, open_: dict[str, tuple[float, str]], resource: str, data: WatchdogRecord,
             t: float) -> None:
-    if data.verdict == "unhealthy":
+    if data.verdict == WatchdogVerdict.UNHEALTHY:
         open_.setdefault(resource, (t, data.detail))
         return
     began = open_.pop(resource, None)

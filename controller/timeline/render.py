@@ -20,7 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from controller.timeline.model import Timeline
+from controller.timeline.model import MarkerKind, Timeline
 
 DPI = 100
 WIDTH_IN = 14.0
@@ -112,9 +112,9 @@ def _lanes(ax: Axes, timeline: Timeline, row: dict[str, int]) -> None:
 
 def _plans(ax: Axes, timeline: Timeline, lanes: int) -> None:
     for number, marker in enumerate(timeline.plans, start=1):
-        color = "#333333" if marker.kind == "plan" else REPLAN_COLOR
-        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)
-        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",
+        color = "#333333" if marker.kind is MarkerKind.PLAN else REPLAN_COLOR
+        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)  # type: ignore[attr-defined]
+        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",  # type: ignore[attr-defined]
                     ha="center", va="bottom", fontsize=6, color=color, annotation_clip=False)
 
 

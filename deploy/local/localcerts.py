@@ -17,6 +17,7 @@ from pathlib import Path
 from common.bus.station_net import station_zenoh_config
 from common.bus.zenoh_config import ZenohConfig, loopback_peer
 from common.config.hubs_toml import StationConfig
+from common.config.modes import SecurityMode
 from common.config.security import identity_of, operator_identity
 from common.model import Model
 from common.plumbing.lifecycle import network
@@ -26,7 +27,7 @@ from deploy.certs import init_ca, issue_for_station
 @contextlib.contextmanager
 def local_certs(config: StationConfig) -> Iterator[Path | None]:
     """A certificate directory for every process of a loopback run (None when the station is insecure)."""
-    if config.security.mode != "tls":
+    if config.security.mode != SecurityMode.TLS:
         yield None
         return
     directory = Path(tempfile.mkdtemp(prefix=f"statehub-{config.station.name}-certs-"))

@@ -9,7 +9,7 @@ from common.model import Model
 from controller.planner import Budget
 from controller.recording.hooks import open_recording
 from controller.recording.reader import list_runs
-from controller.recording.schema import RunMeta
+from controller.recording.schema import RunMeta, RunMode
 from controller.recording.writer import RecordingWriter, recording_dir
 
 
@@ -25,7 +25,8 @@ def in_process_recording(model: Model, model_reference: str, config_path: str | 
     """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
     counts = {"first_expansions": budget.first_expansions, "improve_expansions": budget.improve_expansions,
               "symbolic_layers": budget.symbolic_layers}
-    meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode="in-process", seed=seed,
+    meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode=RunMode.IN_PROCESS,
+                   seed=seed,
                    budget=counts)
     return open_recording(recording_settings(config_path), meta, model)
 

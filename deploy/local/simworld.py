@@ -51,6 +51,7 @@ import msgspec
 from common.bus.protocol import Bus
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import DeviceConfig, StationConfig, load_station
+from common.config.modes import DeviceMode
 from common.model import Model
 from common.plumbing.tasks import cancel_and_wait
 from common.wire.keys import Keys
@@ -165,7 +166,7 @@ class SimWorld:
     speed: float = 1.0
     seed: int = 0
     failure: Mapping[str, float] = field(default_factory=dict)
-    mode: str | None = "sim"  # the `--mode` override; None: as in hubs.toml
+    mode: DeviceMode | None = DeviceMode.SIM  # the `--mode` override; None: as in hubs.toml
     loopback_port: int | None = None  # the station's bus: couples the operator to camera, dock and RFID
     say: Say = print
     certs: Path | None = None  # the run's certificate directory when the station is secured (localcerts.py)
@@ -185,12 +186,12 @@ class SimWorld:
         for hub in self.config.hubs.values():
             for resource, device in hub.devices.items():
                 chosen = effective_mode(device.type, device.mode, self.mode)
-                if chosen == "sim":
+                if chosen == DeviceMode.SIM:
                     self.devices[resource] = device
                     simulator = find_simulator(device.type)
                     if simulator is not None:
                         self.simulators[resource] = simulator
-                elif self.mode == "sim" and chosen == "emulate":
+                elif self.mode == DeviceMode.SIM and chosen == DeviceMode.EMULATE:
                     self.emulated.append(f"{resource} ({device.type})")
 
     def hub_args(self, hub: str) -> list[str]:

@@ -20,6 +20,7 @@ from pathlib import Path
 from common.bus.station_net import security_banner
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import StationConfig, load_station
+from common.config.modes import DeviceMode
 from common.config.security import operator_identity
 from common.model import Model, OperationState
 from common.plumbing.lifecycle import free_port
@@ -77,7 +78,7 @@ class Options:
     config: str = "hubs.toml"
     speed: float = 1.0
     seed: int = 0
-    mode: str | None = None
+    mode: DeviceMode | None = None
     failure: dict[str, float] = field(default_factory=dict)
     time_limit: float = 900.0
     resume: bool = False
@@ -201,7 +202,7 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     world = None
-    if options.mode == "sim":  # the simulators, coupled; each hub is told where its devices' simulators are
+    if options.mode == DeviceMode.SIM:  # the simulators, coupled; each hub is told where its devices' simulators are
         from .simworld import start_world
 
         world = await start_world(config, model, options, port, say, certs=certs)

@@ -17,6 +17,7 @@ every kind of finding as one bug (it tells bugs apart by exception type and loca
 
 from __future__ import annotations
 
+import enum
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -24,17 +25,20 @@ from common.model.predicates import format_value
 
 from .oracle import Effect, InFlight, ResourceOracle, State
 
-# Kinds of findings
-MIRROR = "command not mirrored"
-EFFECT_NOT_OBSERVED = "effect not observed"
-UNEXPLAINED_CHANGE = "change not allowed by the model"
-HUB_STATUS = "hub status"
-START_STATE = "state not reachable in the model"
+
+class FindingKind(enum.StrEnum):
+    """What a model-based test found wrong (the word starts the finding's report)."""
+
+    MIRROR = "command not mirrored"
+    EFFECT_NOT_OBSERVED = "effect not observed"
+    UNEXPLAINED_CHANGE = "change not allowed by the model"
+    HUB_STATUS = "hub status"
+    START_STATE = "state not reachable in the model"
 
 
 @dataclass(frozen=True)
 class Finding:
-    kind: str
+    kind: FindingKind
     message: str  # one line: what was expected and what was seen
     effect: str = ""  # the phase whose effect was expected (`nr.tighten.resetting`), if any
     guard: str = ""  # that effect's guard
@@ -222,7 +226,7 @@ class Checker:
         effect = self.oracle.effect_by_name[flight.effect]
         expected = tuple(self.oracle.describe_change_set([c]) for c in sorted(flight.remaining, key=lambda c: c[0]))
         return Finding(
-            EFFECT_NOT_OBSERVED,
+            FindingKind.EFFECT_NOT_OBSERVED,
             f"{effect.describe_guard()}  expected  {', '.join(expected)}  within {self.deadline:g} s of the rest of "
             f"that outcome ({self._t(since)}): not observed",
             effect=effect.phase, guard=str(effect.transition.guard), expected=expected,
@@ -231,7 +235,7 @@ class Checker:
     def _timer_overdue(self, effect: Effect, timer: _Timer) -> Finding:
         outcomes = self.oracle.describe_outcomes(effect, timer.state)
         return Finding(
-            EFFECT_NOT_OBSERVED,
+            FindingKind.EFFECT_NOT_OBSERVED,
             f"{effect.describe_guard()}  expected  {outcomes}  within {self.deadline:g} s of its guard holding "
             f"({self._t(timer.since)}): not observed",
             effect=effect.phase, guard=str(effect.transition.guard), expected=tuple(outcomes.split(" or ")),
@@ -265,6 +269,6 @@ class Checker:
             _, effect, expected = best
             effect_name, guard = effect.phase, str(effect.transition.guard)
             message += f"; nearest: {effect.describe_guard()}  expected  {', '.join(expected)}"
-        return Finding(UNEXPLAINED_CHANGE, message, effect=effect_name, guard=guard, expected=expected,
+        return Finding(FindingKind.UNEXPLAINED_CHANGE, message, effect=effect_name, guard=guard, expected=expected,
                        observed=oracle.describe(obs.measured, obs.env), details=tuple(details))
 

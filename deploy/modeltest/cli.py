@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from common.config.hubs_toml import ConfigError, StationConfig, load_config, load_station
+from common.config.modes import DeviceMode, NetworkMode
 from common.model import Model, ModelError
 from common.stations import ModelLoadError, load_model
 
@@ -59,7 +60,7 @@ def select_resources(config: StationConfig, model: Model, hub: str, wanted: list
         if name not in model.resource_by_name:
             raise Refused(f"resource {name!r} is not in model {model.name!r}")
     if allow_motion:
-        real = [d for d in devices.values() if d.mode == "real"]
+        real = [d for d in devices.values() if d.mode == DeviceMode.REAL]
         if real:
             listed = ", ".join(f"{d.resource} ({config.path}:{d.line})" if d.line else d.resource for d in real)
             raise Refused(f"--allow-motion refused: hub {hub} has devices in 'real' mode: {listed}. Random commands "
@@ -97,11 +98,11 @@ def open_bus(target: Target) -> tuple[BusThread, str]:
         config = zenoh_config(target.mode, target.listen, target.connect, target.lease_ms, tls=target.tls)
         return BusThread(config, description=where).start(), where
     except LinkError as first:
-        if not target.listen or target.mode != "peer":
+        if not target.listen or target.mode != NetworkMode.PEER:
             raise
         endpoints = [e.replace("0.0.0.0", "127.0.0.1") for e in target.listen]
         fallback = f"connecting to {', '.join(endpoints)} (cannot listen there: {first})"
-        config = zenoh_config("peer", (), endpoints, target.lease_ms, tls=target.tls)
+        config = zenoh_config(NetworkMode.PEER, (), endpoints, target.lease_ms, tls=target.tls)
         return BusThread(config, description=fallback).start(), fallback
 
 

@@ -19,18 +19,20 @@ import queue
 import threading
 import time
 import uuid
-from collections.abc import Coroutine, Iterable, Mapping
+from collections.abc import Callable, Coroutine, Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 from common.bus.protocol import Bus, Subscription, Token
 from common.bus.zenoh_bus import ZenohBus
 from common.bus.zenoh_config import TlsSettings, ZenohConfig, zenoh_config
+from common.config.modes import NetworkMode
 from common.model import Kind, Model, Value
 from common.wire.ctl import StatusMessage
 from common.wire.holder_token import declare_holder
 from common.wire.keys import Keys, station_keys
-from common.wire.messages import Codec, HubStatus, MessageError, ModelMismatch, decode
+from common.wire.messages import Codec, CommandMessage, HubStatus, MessageError, ModelMismatch, StateMessage, decode
 
 log = logging.getLogger("statehub.modeltest")
 T = TypeVar("T")
@@ -111,11 +113,12 @@ class BusThread:
             self._thread.join(10.0)
 
 
-_SHARED: dict[tuple[str, tuple[str, ...], tuple[str, ...], int], BusThread] = {}
+# One per (mode, listen, connect, lease_ms, certificate).
+_SHARED: dict[tuple[NetworkMode, tuple[str, ...], tuple[str, ...], int, Path | None], BusThread] = {}
 _SHARED_LOCK = threading.Lock()
 
 
-def shared_bus(*, listen: Iterable[str] = (), connect: Iterable[str] = (), mode: str = "peer",
+def shared_bus(*, listen: Iterable[str] = (), connect: Iterable[str] = (), mode: NetworkMode = NetworkMode.PEER,
                lease_ms: int = 2000, tls: TlsSettings | None = None) -> BusThread:
     """One BusThread per network setting for the whole process (pytest sessions): a listener
     bound once stays bound, however many tests use it. Closed at exit."""
@@ -200,12 +203,12 @@ class ResourceLink:
         for other, kinds in by_resource.items():
             codec = Codec(self.model.resource_by_name[other])
             if Kind.MEASURED in kinds:
-                self._watch(bus.subscribe(self.keys.state(other)), self._context_handler(codec, "state"))
+                self._watch(bus.subscribe(self.keys.state(other)), self._context_handler(codec, codec.decode_state))
             if Kind.COMMAND in kinds:
-                self._watch(bus.subscribe(self.keys.cmd(other)), self._context_handler(codec, "cmd"))
+                self._watch(bus.subscribe(self.keys.cmd(other)), self._context_handler(codec, codec.decode_command))
         self._tasks.append(asyncio.create_task(self._resend(), name=f"modeltest resend {name}"))
 
-    def _watch(self, subscription: Subscription[Any], handler: Any) -> None:
+    def _watch(self, subscription: Subscription[Any], handler: Callable[[bytes], None]) -> None:
         self._subscriptions.append(subscription)
 
         async def consume() -> None:
@@ -250,7 +253,7 @@ class ResourceLink:
             measured=self.codec.values(state, paths=True),
             mirror_seq=None if mirror is None else mirror.seq,
             mirror_controller=None if mirror is None else mirror.controller,
-            mirror=None if mirror is None else self.codec.values(mirror, paths=True),  # type: ignore[arg-type]
+            mirror=None if mirror is None else self.codec.values(mirror, paths=True),
             status=state.status, detail=state.detail, hub=state.hub, context=dict(self._context)))
 
     def _on_own_command(self, payload: bytes) -> None:
@@ -267,12 +270,14 @@ class ResourceLink:
             status = decode(payload, StatusMessage)
             self.controller_status[status.controller] = time.monotonic()
 
-    def _context_handler(self, codec: Codec, what: str) -> Any:
+    def _context_handler(self, codec: Codec, decode_message: Callable[[bytes], CommandMessage | StateMessage]
+                         ) -> Callable[[bytes], None]:
+        """Another resource's states or commands (read by `decode_message`): their values the guards read."""
         wanted = set(self.context_paths)
 
         def handle(payload: bytes) -> None:
             try:
-                message = codec.decode_state(payload) if what == "state" else codec.decode_command(payload)
+                message = decode_message(payload)
             except MessageError:
                 return
             for path, value in codec.values(message, paths=True).items():

@@ -22,6 +22,7 @@ from hypothesis.errors import Flaky
 from common.bus.station_net import tls_settings
 from common.bus.zenoh_config import TlsSettings
 from common.config.hubs_toml import StationConfig, load_config, load_station
+from common.config.modes import NetworkMode
 from common.config.security import identity_of, tls_endpoints
 from common.model import Model
 
@@ -41,7 +42,7 @@ class Target:
     station: str
     listen: tuple[str, ...] = ()  # zenoh endpoints to listen on (where the controller would listen)
     connect: tuple[str, ...] = ()  # zenoh endpoints to connect to
-    mode: str = "peer"
+    mode: NetworkMode = NetworkMode.PEER
     lease_ms: int = 2000
     command_rate_hz: float = 10.0
     # [security] mode "tls": the controller's certificate and the station's access control

@@ -19,6 +19,7 @@ to a reachable state by itself and skips the examples until it does.
 
 from __future__ import annotations
 
+import enum
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,13 +30,24 @@ from common.model import Value
 from common.model.predicates import format_value
 from common.wire.messages import HubStatus
 
-from .checker import HUB_STATUS, MIRROR, START_STATE, Checker, Finding, Observation, Violation, violation
+from .checker import Checker, Finding, FindingKind, Observation, Violation, violation
 from .link import ResourceLink, StateSample
 from .oracle import ResourceOracle
 
-SETTLE = "settle"
-BRIEF = "brief"
-MODEL, ANY, HOME = "model", "any", "home"
+
+class Wait(enum.Enum):
+    """What a step does after its command."""
+
+    SETTLE = "settle"  # waits until the device is at rest (Options.quiet)
+    BRIEF = "brief"  # holds the command briefly (Options.brief), then the next one
+
+
+class Source(enum.Enum):
+    """Where a step's command comes from."""
+
+    MODEL = "model"  # one the model's transitions would send
+    ANY = "any"  # any values in their domains
+    HOME = "home"  # the initial values: every example ends there
 POLL_S = 0.02
 
 
@@ -66,14 +78,14 @@ class Options:
 @dataclass(frozen=True)
 class Step:
     command: dict[str, Value]  # every command variable, by short name
-    wait: str  # SETTLE or BRIEF
-    source: str  # MODEL: one the model's transitions would send; ANY: any in-domain values; HOME: the initial ones
+    wait: Wait
+    source: Source
 
     def describe(self, resource: str) -> str:
         values = ", ".join(f"{resource}.{name} := {format_value(v)}" for name, v in self.command.items())
-        how = {MODEL: "the model's command", ANY: "an arbitrary command", HOME: "back to the initial command"}[
-            self.source]
-        wait = "wait until settled" if self.wait == SETTLE else "hold briefly"
+        how = {Source.MODEL: "the model's command", Source.ANY: "an arbitrary command",
+               Source.HOME: "back to the initial command"}[self.source]
+        wait = "wait until settled" if self.wait is Wait.SETTLE else "hold briefly"
         return f"{values}   ({how}; then {wait})"
 
 
@@ -145,7 +157,7 @@ class Session:
             for _ in range(count):
                 steps.append(self._draw_step(data))
                 self._run_step(steps[-1])
-            steps.append(Step(self._initial_command(), SETTLE, HOME))  # every example ends at home, checked
+            steps.append(Step(self._initial_command(), Wait.SETTLE, Source.HOME))  # every example ends at home, checked
             self._run_step(steps[-1])
         except Violation as exc:
             trace = self.checker.trace if self.checker is not None else []
@@ -188,7 +200,7 @@ class Session:
         self.checker.start(start)
         if not reachable:
             raise violation(Finding(
-                START_STATE,
+                FindingKind.START_STATE,
                 f"after commanding the initial values the device rests at "
                 f"{self.oracle.describe(start.measured)}, which the model cannot reach from its initial state "
                 f"{self.oracle.describe(self.oracle.initial_measured)} by any commands",
@@ -210,8 +222,8 @@ class Session:
             if sample is None:
                 if self._first_contact:
                     raise SessionAborted(self._no_state(timeout))
-                raise violation(Finding(MIRROR, f"the hub did not mirror the initial command (seq {seq}) within "
-                                                f"{timeout:g} s"))
+                raise violation(Finding(FindingKind.MIRROR, f"the hub did not mirror the initial command (seq {seq}) "
+                                                            f"within {timeout:g} s"))
             self._check_sample(sample, during_home=True)
             if sample.mirror_seq is not None and sample.mirror_seq >= seq \
                     and sample.mirror_controller == self.link.controller_id:
@@ -244,12 +256,12 @@ class Session:
         pick = data.draw(st.integers(0, 3))
         if candidates and pick < self.options.model_share:
             command = candidates[data.draw(st.integers(0, len(candidates) - 1))]
-            source = MODEL
+            source = Source.MODEL
         else:
             command = data.draw(st.fixed_dictionaries(
                 {v.name: st.sampled_from(v.domain.values) for v in self.oracle.resource.commands}))
-            source = ANY
-        wait = data.draw(st.sampled_from((SETTLE, BRIEF)))
+            source = Source.ANY
+        wait = data.draw(st.sampled_from(Wait))
         return Step(command, wait, source)
 
     def _run_step(self, step: Step) -> None:
@@ -265,14 +277,16 @@ class Session:
             if sample is None or sample.mirror_seq is None or sample.mirror_seq < seq:
                 return False
             if sample.mirror_seq == seq and sample.mirror != expected:
-                raise violation(Finding(MIRROR, f"the hub mirrors command seq {seq} as {sample.mirror}, "
-                                                f"but it was sent as {expected}", observed=checker.describe_last()))
+                raise violation(Finding(FindingKind.MIRROR, f"the hub mirrors command seq {seq} as {sample.mirror}, "
+                                                            f"but it was sent as {expected}",
+                                        observed=checker.describe_last()))
             return True
 
         self._pump(mirrored, self.options.deadline, on_timeout=lambda: Finding(
-            MIRROR, f"the hub did not mirror command seq {seq} ({values}) within {self.options.deadline:g} s",
+            FindingKind.MIRROR,
+            f"the hub did not mirror command seq {seq} ({values}) within {self.options.deadline:g} s",
             observed=checker.describe_last()))
-        if step.wait == BRIEF:
+        if step.wait is Wait.BRIEF:
             self._pump(lambda _sample: False, self.options.brief)
         else:
             self._settle()
@@ -333,12 +347,12 @@ class Session:
         if during_home and not ours:
             return  # not yet under our command: whatever state the hub is in
         if sample.status is not HubStatus.OK:
-            raise violation(Finding(HUB_STATUS, f"hub {sample.hub} reports {sample.status.value} for "
+            raise violation(Finding(FindingKind.HUB_STATUS, f"hub {sample.hub} reports {sample.status.value} for "
                                                 f"{link.resource.name}: {sample.detail or '(no detail)'}",
                                     observed=self._describe_sample(sample)))
         unknown = [p for p, v in sample.measured.items() if v is None]
         if unknown:
-            raise violation(Finding(HUB_STATUS, f"hub {sample.hub} reports {', '.join(unknown)} unknown",
+            raise violation(Finding(FindingKind.HUB_STATUS, f"hub {sample.hub} reports {', '.join(unknown)} unknown",
                                     observed=self._describe_sample(sample)))
 
     def _describe_sample(self, sample: StateSample) -> str:

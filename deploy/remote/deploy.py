@@ -37,6 +37,7 @@ from typing import TextIO
 
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import StationConfig, load_station
+from common.config.modes import SecurityMode
 from common.config.security import cert_dir, identity_of, tls_files
 from common.stations import is_file_reference
 from common.wire.selftest_report import format_report
@@ -130,7 +131,7 @@ def read_station_file(path: Path) -> bytes:
 def hub_cert_files(config: StationConfig, hub: str) -> list[tuple[str, Path]]:
     """The CA certificate and the hub's certificate and key to ship ([security] mode "tls"), from this
     machine's certificate directory (`hubctl certs issue HUB`)."""
-    if config.security.mode != "tls":
+    if config.security.mode != SecurityMode.TLS:
         return []
     files = tls_files(cert_dir(config), identity_of(config, hub))
     return [(p.name, p) for p in (files.root_ca, files.certificate, files.private_key)]
@@ -339,7 +340,7 @@ async def install_steps(progress: Progress, remote: Remote, config: StationConfi
             groups = hub_groups(config.hubs[hub])
             try:
                 certs = (layout.certs(hub), [n for n, _ in hub_cert_files(config, hub)]) \
-                    if config.security.mode == "tls" else None
+                    if config.security.mode == SecurityMode.TLS else None
                 await remote.run(scripts.install_unit(layout, release, stage, unit, groups, certs=certs),
                                  what=f"install {unit}", privileged=True)
             except RemoteError as exc:

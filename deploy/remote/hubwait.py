@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from common.bus.protocol import Bus, LivelinessEvent, Sample, Subscription
 from common.bus.zenoh_config import ZenohConfig, zenoh_config
 from common.config.hubs_toml import StationConfig
+from common.config.modes import NetworkMode, SecurityMode
 from common.wire.keys import station_keys
 from common.wire.messages import MessageError, decode
 from common.wire.selftest_report import SelftestMessage
@@ -54,15 +55,16 @@ def watch_config(config: StationConfig, hub: str, *, listen: str = DEFAULT_LISTE
     """The watcher's session: in [security] mode "tls" with the first operator's certificate."""
     net = config.network_for(hub)
     endpoints = connect or watch_endpoints(config, hub)
-    if config.security.mode == "tls":
+    if config.security.mode == SecurityMode.TLS:
         from common.bus.station_net import station_zenoh_config
         from common.config.security import operator_identity
 
         return station_zenoh_config(config, config.load_model(), operator_identity(config), net,
-                                    listen=[listen] if listen and net.mode == "peer" else [], connect=endpoints)
-    if net.mode == "client":
-        return zenoh_config("client", connect=endpoints, lease_ms=net.lease_ms)
-    return zenoh_config("peer", listen=[listen] if listen else [], connect=endpoints, lease_ms=net.lease_ms)
+                                    listen=[listen] if listen and net.mode == NetworkMode.PEER else [],
+                                    connect=endpoints)
+    if net.mode == NetworkMode.CLIENT:
+        return zenoh_config(NetworkMode.CLIENT, connect=endpoints, lease_ms=net.lease_ms)
+    return zenoh_config(NetworkMode.PEER, listen=[listen] if listen else [], connect=endpoints, lease_ms=net.lease_ms)
 
 
 @dataclass

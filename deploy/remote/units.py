@@ -50,6 +50,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from common.config.hubs_toml import HubConfig, StationConfig
+from common.config.modes import DeviceMode, SecurityMode
 
 from .layout import CONTROLLER_UNIT, Layout, hub_unit_name
 
@@ -89,7 +90,8 @@ class Unit:
 
 def hub_groups(hub: HubConfig) -> list[str]:
     """The supplementary groups the hub's devices need (only devices in `real` mode touch /dev)."""
-    return sorted({DEVICE_GROUPS[d.type] for d in hub.devices.values() if d.mode == "real" and d.type in DEVICE_GROUPS})
+    return sorted({DEVICE_GROUPS[d.type] for d in hub.devices.values()
+                   if d.mode == DeviceMode.REAL and d.type in DEVICE_GROUPS})
 
 
 def _restart(systemd_version: int) -> list[str]:
@@ -163,7 +165,7 @@ def _exec(*args: str) -> str:
 
 
 def _certs_option(config: StationConfig, layout: Layout, hub: str | None) -> list[str]:
-    return ["--certs", layout.certs(hub)] if config.security.mode == "tls" else []
+    return ["--certs", layout.certs(hub)] if config.security.mode == SecurityMode.TLS else []
 
 
 def hub_unit(config: StationConfig, hub: str, layout: Layout = ON_TARGET,

@@ -39,13 +39,17 @@ from controller.recording.schema import (
     CommandRecord,
     HoldRecord,
     OperationRecord,
+    PlanAnswer,
     PlanRecord,
     PlanRequestRecord,
     RecordKind,
     RequestRecord,
     RestoreRecord,
+    RunMode,
+    RunOutcome,
     StateRecord,
     WatchdogRecord,
+    WatchdogVerdict,
     station_model_hash,
 )
 from controller.requests import Requests
@@ -140,7 +144,7 @@ class Replayer:
             raise ReplayError(f"{run.parts[0]}: recorded with another version of model {meta.model} "
                               f"(hash {meta.model_hash}, now {station_model_hash(self.model)})")
         self.run = run
-        self.replans = meta.mode == "in-process" and meta.budget is not None  # plans by counts: plan again
+        self.replans = meta.mode == RunMode.IN_PROCESS and meta.budget is not None  # plans by counts: plan again
         budget = Budget(**meta.budget) if meta.budget else None
         stack = build_controller_stack(self.model, prepare=self.replans)
         self.compiled = stack.compiled
@@ -186,7 +190,7 @@ class Replayer:
                                                   else f" ({theirs.kind.value} {theirs.key} at t={theirs.t:.3f} s)"))
                 return result
             result.decisions[mine.kind.value] = result.decisions.get(mine.kind.value, 0) + 1
-        if len(replayed) > len(recorded) and self.run.meta.outcome == "running" and \
+        if len(replayed) > len(recorded) and self.run.meta.outcome == RunOutcome.RUNNING and \
                 all(r.t >= last_t for r in replayed[len(recorded):]):
             # A killed controller's last batch of records (a fraction of a second) never reached the disk.
             result.cut_short = len(replayed) - len(recorded)
@@ -205,7 +209,7 @@ class Replayer:
 
     def _watchdog(self, record: Record) -> None:
         data: WatchdogRecord = record.data  # type: ignore[assignment]
-        if data.verdict == "unhealthy":
+        if data.verdict == WatchdogVerdict.UNHEALTHY:
             self.unhealthy[record.key] = data.detail
         else:
             self.unhealthy.pop(record.key, None)
@@ -245,7 +249,7 @@ class Replayer:
         request = self.asked.get(data.generation)
         if request is None:
             return  # not asked for in the replay: the plan requests already differ
-        improvement = data.answer == "improvement"
+        improvement = data.answer == PlanAnswer.IMPROVEMENT
         replan = self.replans and not improvement
         answer = self.core.solve(request) if replan else self._recorded_answer(request, data)
         if improvement:

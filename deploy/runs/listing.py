@@ -6,9 +6,10 @@ import time
 from pathlib import Path
 
 from controller.recording.reader import RunInfo, list_runs
+from controller.recording.schema import RunOutcome
 
 COLUMNS = ("started", "run", "mode", "outcome", "operations", "plans", "replans", "faults", "duration", "size", "file")
-OUTCOMES = {"running": "running/killed"}  # a run whose controller was killed never wrote its end
+OUTCOMES = {RunOutcome.RUNNING: "running/killed"}  # a run whose controller was killed never wrote its end
 
 
 def run_row(info: RunInfo) -> tuple[str, ...]:

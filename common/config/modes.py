@@ -1,0 +1,58 @@
+"""The modes of hubs.toml, as the code compares them: how a device runs, how a process joins the
+network, how the station's links are protected.
+
+StrEnums: msgspec reads and writes each as its string, so hubs.toml, the command line and every
+file that holds one keep the words they had; code compares the members, never the words.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+from collections.abc import Callable
+from typing import TypeVar
+
+
+class DeviceMode(enum.StrEnum):
+    """How a hub runs one device (DESIGN §6): the controller cannot tell the three apart."""
+
+    EMULATE = "emulate"  # the model's effects, no hardware
+    SIM = "sim"  # the real driver against a simulator speaking the device's protocol
+    REAL = "real"  # the real driver against the device
+
+
+class NetworkMode(enum.StrEnum):
+    """How a process joins zenoh (`[network] mode`)."""
+
+    PEER = "peer"  # direct links: the controller listens, hubs connect to it
+    CLIENT = "client"  # every process connects to zenoh routers (a client cannot listen)
+
+
+class SecurityMode(enum.StrEnum):
+    """How the station's links are protected (`[security] mode`, common/config/security.py)."""
+
+    TLS = "tls"  # mutual TLS on every link, access control by certificate
+    INSECURE = "insecure"  # plain TCP: a single-machine `hubctl up` only
+
+
+def words(mode: type[enum.StrEnum]) -> tuple[str, ...]:
+    """A mode's words in declared order: the list an error shows."""
+    return tuple(member.value for member in mode)
+
+
+Mode = TypeVar("Mode", bound=enum.StrEnum)
+
+
+def argument(mode: type[Mode]) -> Callable[[str], Mode]:
+    """argparse's `type` for an option taking a mode (`--mode sim`): the member, or argparse's own
+    "invalid choice" error listing the words (its default would name the enum class instead)."""
+
+    def parse(text: str) -> Mode:
+        try:
+            return mode(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"invalid choice: {text!r} (choose from {', '.join(words(mode))})") from None
+
+    parse.__name__ = mode.__name__
+    return parse
