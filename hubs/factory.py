@@ -135,6 +135,7 @@ def device_problems(config: StationConfig, *, hub: str | None = None, mode: Devi
                     resolve(device.type, chosen, {**device.params, **extra})
                 continue
             except NoDriver as exc:
+                key: tuple[str, ...]
                 key, message = (*table, "type"), _no_driver(exc, hub_config.name, device.mode, chosen)
             except PluginError as exc:
                 key, message = (*table, "type"), str(exc)

@@ -239,11 +239,12 @@ class _Checker:
         return None
 
     def section(self, cls: type[S], table: Mapping[str, Any], path: tuple[str, ...], *,
-                extra: Mapping[str, Any] = (), free: bool = False, skip: Iterable[str] = ()) -> S | None:
+                extra: Mapping[str, Any] | None = None, free: bool = False, skip: Iterable[str] = ()) -> S | None:
         """Convert `table` into `cls` field by field, so that every bad key is reported.
         `extra`: fields not read from the table; `free`: unknown keys are returned as `params`;
         `skip`: keys handled by the caller."""
         fields = {f.name: f for f in msgspec.structs.fields(cls)}
+        extra = extra or {}
         values: dict[str, Any] = dict(extra)
         params: dict[str, Any] = {}
         ok = True

@@ -148,14 +148,14 @@ class Event(msgspec.Struct, frozen=True, tag_field="kind"):
         return self.template.format(**msgspec.structs.asdict(self))
 
 
-class Replanned(Event, tag="replan"):
+class Replanned(Event, tag="replan", frozen=True):
     """The plan under way (if any) is dropped and a new one asked for."""
 
     cause: ReplanCause
     template: ClassVar[str] = "replan: {cause.text}"
 
 
-class PlanKept(Event, tag="plan_kept"):
+class PlanKept(Event, tag="plan_kept", frozen=True):
     """The state left the plan, but the rest of the plan still reaches the goals from there."""
 
     steps: int
@@ -163,7 +163,7 @@ class PlanKept(Event, tag="plan_kept"):
     template: ClassVar[str] = "plan kept: {steps} steps still reach the goals ({cause.text})"
 
 
-class ShorterPlan(Event, tag="shorter_plan"):
+class ShorterPlan(Event, tag="shorter_plan", frozen=True):
     """The planner kept searching and found a shorter way from where the station is: it replaces the rest."""
 
     steps: int
@@ -172,7 +172,7 @@ class ShorterPlan(Event, tag="shorter_plan"):
     template: ClassVar[str] = "shorter plan taken: {steps} steps left instead of {instead_of} ({method})"
 
 
-class PlannedAlone(Event, tag="planned_alone"):
+class PlannedAlone(Event, tag="planned_alone", frozen=True):
     """The goals together had no plan within the budget: one of them is planned alone, for progress."""
 
     operation: str
@@ -182,7 +182,7 @@ class PlannedAlone(Event, tag="planned_alone"):
                                "({reason})")
 
 
-class NoPlanFound(Event, tag="no_plan"):
+class NoPlanFound(Event, tag="no_plan", frozen=True):
     """Goals without a plan: shown unreachable (`proven`) or not found within the budget; said once per goal
     and reason, not at every retry."""
 
@@ -197,7 +197,7 @@ class NoPlanFound(Event, tag="no_plan"):
         return f"no plan ({kind}) for {', '.join(self.operations)}: {self.reason}"
 
 
-class PlanFound(Event, tag="plan_found"):
+class PlanFound(Event, tag="plan_found", frozen=True):
     """A goal that had no plan has one again."""
 
     operation: str
@@ -205,7 +205,7 @@ class PlanFound(Event, tag="plan_found"):
     template: ClassVar[str] = "plan found for {operation} after {attempts} attempt(s) without one"
 
 
-class Livelock(Event, tag="livelock"):
+class Livelock(Event, tag="livelock", frozen=True):
     """The same goals were asked again and again from one state, no progress in between, because an effect the
     plan needed never came: the operations go to `error` (retried with backoff, until `requests` reaches the
     limit). Said once per diagnosis."""
@@ -222,14 +222,14 @@ class Livelock(Event, tag="livelock"):
                 f"{', '.join(self.operations)} in error")
 
 
-class HubAlive(Event, tag="hub_alive"):
+class HubAlive(Event, tag="hub_alive", frozen=True):
     """The hub's liveliness token appeared (a start or a reconnection)."""
 
     hub: str
     template: ClassVar[str] = "hub {hub} alive"
 
 
-class HubGone(Event, tag="hub_gone"):
+class HubGone(Event, tag="hub_gone", frozen=True):
     """The hub's liveliness token went away: its resources go unhealthy."""
 
     hub: str
@@ -237,7 +237,7 @@ class HubGone(Event, tag="hub_gone"):
     fault: ClassVar[bool] = True
 
 
-class MirrorsMissing(Event, tag="mirrors_missing"):
+class MirrorsMissing(Event, tag="mirrors_missing", frozen=True):
     """At start, these hubs' resources (by hub) sent no mirror in time: they are held (sent no command) until
     their mirrors arrive, and their command state is then taken from the mirrors."""
 
@@ -252,7 +252,7 @@ class MirrorsMissing(Event, tag="mirrors_missing"):
         return f"start: no mirror from {self.report}: held, no command until their mirrors arrive"
 
 
-class HoldReleased(Event, tag="hold_released"):
+class HoldReleased(Event, tag="hold_released", frozen=True):
     """A held resource's command state is known again: from its mirror, or (its hub restarted and has no
     command) the model's initial values, which make no specification hold."""
 
@@ -261,7 +261,7 @@ class HoldReleased(Event, tag="hold_released"):
     template: ClassVar[str] = "{resource} no longer held: its commands resume from {source}"
 
 
-class ForbiddenState(Event, tag="forbidden_state"):
+class ForbiddenState(Event, tag="forbidden_state", frozen=True):
     """A specification's forbidden state holds on the measured and estimated state (a device did what the
     model does not say, or an override): no deliberate transition fires until it clears."""
 
@@ -275,14 +275,14 @@ class ForbiddenState(Event, tag="forbidden_state"):
         return f"forbidden state: {self.specification} holds ({values}): deliberate transitions stopped"
 
 
-class ForbiddenStateCleared(Event, tag="forbidden_state_cleared"):
+class ForbiddenStateCleared(Event, tag="forbidden_state_cleared", frozen=True):
     """The specification's forbidden state no longer holds."""
 
     specification: str
     template: ClassVar[str] = "forbidden state cleared: {specification} no longer holds"
 
 
-class RequestAnswered(Event, tag="request"):
+class RequestAnswered(Event, tag="request", frozen=True):
     """A console's request and the controller's answer."""
 
     request: str  # ConsoleRequest.describe()
@@ -297,7 +297,7 @@ class RequestAnswered(Event, tag="request"):
         return f"console{origin}: {self.request} {'accepted' if self.accepted else 'refused'}{detail}"
 
 
-class ControllerChanged(Event, tag="controller_changed"):
+class ControllerChanged(Event, tag="controller_changed", frozen=True):
     """The console sees another controller publish (a restart)."""
 
     controller: str
@@ -305,7 +305,7 @@ class ControllerChanged(Event, tag="controller_changed"):
     template: ClassVar[str] = "controller {controller} (was {previous})"
 
 
-class Unhealthy(Event, tag="unhealthy"):
+class Unhealthy(Event, tag="unhealthy", frozen=True):
     """The watchdog's verdict: the resource is unhealthy (the console notes it from the status's health)."""
 
     resource: str
@@ -314,7 +314,7 @@ class Unhealthy(Event, tag="unhealthy"):
     fault: ClassVar[bool] = True
 
 
-class Recovered(Event, tag="recovered"):
+class Recovered(Event, tag="recovered", frozen=True):
     """The watchdog's verdict: the resource is healthy again."""
 
     resource: str

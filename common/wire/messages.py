@@ -180,13 +180,13 @@ def _field_type(domain: Domain) -> tuple[Any, bool]:
     values = domain.values
     if domain.is_bool:
         return bool, True
-    if all(isinstance(v, int) and not isinstance(v, bool) for v in values):
-        ints = sorted(values)  # type: ignore[type-var]
-        if ints == list(range(ints[0], ints[-1] + 1)):  # type: ignore[operator]
+    ints = sorted(v for v in values if isinstance(v, int) and not isinstance(v, bool))
+    if ints and len(ints) == len(values):
+        if ints == list(range(ints[0], ints[-1] + 1)):
             return Annotated[int, msgspec.Meta(ge=ints[0], le=ints[-1])], True
-        return Literal[tuple(values)], True  # type: ignore[valid-type]
+        return Literal[tuple(values)], True
     if all(isinstance(v, str) for v in values):
-        return Literal[tuple(values)], True  # type: ignore[valid-type]
+        return Literal[tuple(values)], True
     # A mixed domain (not built by Domain.enum/range): decode loosely, check by hand.
     longest = max((len(v) for v in values if isinstance(v, str)), default=0)
     return bool | int | Annotated[str, msgspec.Meta(max_length=longest)], False
@@ -521,6 +521,6 @@ def decode(data: bytes | bytearray | memoryview, type_: type[M]) -> M:
     if decoder is None:
         decoder = _decoders[type_] = msgspec.msgpack.Decoder(type_)
     try:
-        return decoder.decode(data)  # type: ignore[no-any-return]
+        return decoder.decode(data)
     except Exception as exc:
         raise MessageError(f"{name}: {exc}") from None

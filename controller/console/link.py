@@ -51,7 +51,9 @@ class Feed(Protocol):
     snapshot: StateSnapshot | None
     selftests: dict[str, SelftestMessage]
     version: int
-    connected: bool
+
+    @property
+    def connected(self) -> bool: ...
 
     async def run(self) -> None: ...
 

@@ -89,7 +89,7 @@ class RowTable(DataTable[Cell]):
             self._add(key, row)
         self._rows = dict(rows)
         if selected in rows:
-            self.select(selected)  # type: ignore[arg-type]
+            self.select(selected)
         return len(rows)
 
     def _add(self, key: str, row: Row) -> None:

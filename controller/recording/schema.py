@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import enum
 import hashlib
+from typing import Any
 
 import msgspec
 
@@ -276,7 +277,7 @@ class RequestRecord(msgspec.Struct, kw_only=True):
     reason: str = ""
 
 
-DATA_TYPES: dict[RecordKind, type] = {
+DATA_TYPES: dict[RecordKind, Any] = {  # Any: ConsoleEvent is a union of Struct types, not one type
     RecordKind.STATE: StateRecord,
     RecordKind.STATES: StatesRecord,
     RecordKind.COMMAND: CommandRecord,

@@ -196,7 +196,7 @@ def build_timeline(run: Run, model: Model | None = None) -> Timeline:
             _health(timeline, unhealthy_open, record.key, data, t)
         elif isinstance(data, Event) and data.fault:
             lane = getattr(data, "resource", "") or getattr(data, "hub", "")
-            timeline.faults.append(Marker(t, MarkerKind.FAULT, data.text, lane))  # type: ignore[union-attr]
+            timeline.faults.append(Marker(t, MarkerKind.FAULT, data.text, lane))
     for name, (state, began) in operation_open.items():
         timeline.operation_spans.append(Span(name, state, began, end, state))
     for resource, (began, reason) in unhealthy_open.items():

@@ -113,8 +113,8 @@ def _lanes(ax: Axes, timeline: Timeline, row: dict[str, int]) -> None:
 def _plans(ax: Axes, timeline: Timeline, lanes: int) -> None:
     for number, marker in enumerate(timeline.plans, start=1):
         color = "#333333" if marker.kind is MarkerKind.PLAN else REPLAN_COLOR
-        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)  # type: ignore[attr-defined]
-        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",  # type: ignore[attr-defined]
+        ax.axvline(marker.t, color=color, linestyle="--", linewidth=0.7, alpha=0.8, zorder=3)
+        ax.annotate(str(number), (marker.t, -0.5), xytext=(0, 2), textcoords="offset points",
                     ha="center", va="bottom", fontsize=6, color=color, annotation_clip=False)
 
 

@@ -88,8 +88,8 @@ class ResourceOracle:
         self.index: dict[str, int] = {p: i for i, p in enumerate(self.paths)}
         self.n_measured = len(self.measured)
         initial = model.initial_state()
-        self.initial_env: State = tuple(initial[p] for p in self.commands + self.context)  # type: ignore[misc]
-        self.initial_measured: State = tuple(initial[p] for p in self.measured)  # type: ignore[misc]
+        self.initial_env: State = tuple(initial[p] for p in self.commands + self.context)
+        self.initial_measured: State = tuple(initial[p] for p in self.measured)
         self.effects: tuple[Effect, ...] = tuple(self._effect(t) for t in effect_transitions)
         self.effect_by_name = {e.name: e for e in self.effects}
         self._control_guards = tuple(compile_predicate(t.guard, self.index) for t in self.controls)
@@ -229,10 +229,10 @@ class ResourceOracle:
                 return None
             envs = []
             for values in itertools.product(*domains):
-                env = list(self.initial_env)
+                env_values = list(self.initial_env)
                 for i, v in zip(effect.env_reads, values, strict=True):
-                    env[i - self.n_measured] = v
-                envs.append(tuple(env))
+                    env_values[i - self.n_measured] = v
+                envs.append(tuple(env_values))
             combos.append(envs)
         seen = {self.initial_measured}
         frontier = [self.initial_measured]

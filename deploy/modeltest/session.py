@@ -208,7 +208,7 @@ class Session:
         return True
 
     def _initial_command(self) -> dict[str, Value]:
-        return {v.name: v.initial for v in self.oracle.resource.commands}  # type: ignore[misc]
+        return {v.name: v.initial for v in self.oracle.resource.commands}
 
     def _home(self) -> Observation:
         """Command the initial values and wait (unchecked) until the device is at rest."""

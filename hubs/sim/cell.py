@@ -332,7 +332,7 @@ class BadgeCoupling:
             except MessageError:
                 continue
             now = time.monotonic()
-            if state.verified_m is not False:  # verified, or the reader does not answer
+            if self.codec.values(state)["verified_m"] is not False:  # verified, or the reader does not answer
                 unverified_since = None
                 continue
             unverified_since = unverified_since if unverified_since is not None else now
