@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from common.ctl import (
-    Event,
     NoPlanFound,
     PlanFound,
     PlanKept,
@@ -28,6 +27,7 @@ from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 
 from .engine import Engine, PlanProgress, TickResult
+from .events import EventLog
 from .planner import Budget, NoPlan, Plan, Planner
 from .safety import SafetyMonitor
 
@@ -83,7 +83,7 @@ class ControlEvents:
     plans: int = 0
     no_plans: int = 0
     abilities_started: int = 0
-    log: list[Event] = field(default_factory=list)
+    log: EventLog = field(default_factory=EventLog)
 
 
 def anytime_answers(planner: Planner, request: PlanRequest,
@@ -250,7 +250,8 @@ class ControlCore:
     def _check_safety(self) -> None:
         events = self.safety.check(self.state, self.unknown)
         if events:
-            self.events.log.extend(events)
+            for event in events:
+                self.events.log.emit(event)
             if not self.safety.stopped:  # devices went on meanwhile, as after a pause: plan afresh
                 self._want_plan(ReplanCause(ReplanReason.SAFE_AGAIN))
 
@@ -277,7 +278,7 @@ class ControlCore:
         if plan is None:
             return False
         self.progress = PlanProgress(self.compiled, plan)
-        self.events.log.append(PlanKept(len(rest), cause))
+        self.events.log.emit(PlanKept(len(rest), cause))
         return True
 
     def _only_finished_left(self, goals: frozenset[str]) -> bool:
@@ -300,7 +301,7 @@ class ControlCore:
         self.requested_goals = frozenset(goals)
         if self.need_plan_reason.reason is not ReplanReason.START and goals:
             self.events.replans += 1
-            self.events.log.append(Replanned(self.need_plan_reason))
+            self.events.log.emit(Replanned(self.need_plan_reason))
         reason, self.need_plan_reason = self.need_plan_reason, None
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason)
 
@@ -320,7 +321,7 @@ class ControlCore:
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
         result, note = solve_goals(self.planner, request, self.budget)
         if note is not None:
-            self.events.log.append(note)
+            self.events.log.emit(note)
         return result
 
     def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> bool:
@@ -346,7 +347,7 @@ class ControlCore:
                     news.append(name)
                 self._set_op_state(name, OperationState.ERROR)
             if news:  # said once per goal and reason, not at every retry
-                self.events.log.append(NoPlanFound(news, result.proven, result.reason))
+                self.events.log.emit(NoPlanFound(news, result.proven, result.reason))
             self._want_plan(ReplanCause(ReplanReason.GOALS_WITHOUT_PLAN))
             self.progress = None
             return True
@@ -356,7 +357,7 @@ class ControlCore:
             if error is not None:
                 if self.op_state(name) is OperationState.ERROR:
                     self._set_op_state(name, OperationState.EXECUTING)
-                self.events.log.append(PlanFound(name, error.attempts))
+                self.events.log.emit(PlanFound(name, error.attempts))
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self.progress = PlanProgress(self.compiled, result)
@@ -382,7 +383,7 @@ class ControlCore:
             if kept is None:
                 continue
             self.progress = PlanProgress(self.compiled, kept)
-            self.events.log.append(ShorterPlan(len(kept.steps), left, better.stats.method))
+            self.events.log.emit(ShorterPlan(len(kept.steps), left, better.stats.method))
             return True
         return False
 

@@ -45,10 +45,10 @@ from common.recording.schema import (
 )
 from common.stations import load_model
 from controller.control import ControlCore, PlanRequest
+from controller.loop import ControlLoop
 from controller.planner import Budget, NoPlan, Plan, PlanStats
 from controller.planner.validate import plan_from_moves
-from controller.recorder import RunRecorder
-from controller.requests import Requests
+from controller.recorder import RunRecorder, VirtualClock
 from controller.stack import build_controller_stack
 
 DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
@@ -105,14 +105,6 @@ class ListSink:
         pass
 
 
-class VirtualClock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def is_decision(record: Record) -> bool:
     return record.kind in DECISIONS and (record.kind is not RecordKind.EVENT or record.key in CORE_EVENTS)
 
@@ -146,11 +138,15 @@ class Replayer:
         self.compiled = stack.compiled
         self.clock = VirtualClock()
         self.core: ControlCore = stack.control_core(self.clock, budget=budget)
-        self.core.request(*meta.requested)
         self.sink = ListSink()
-        self.recorder = RunRecorder(self.core, self.clock, self.sink)
-        self.requests = Requests(self.core, answered=self.recorder.request)
+        # The live controller commands the resources of its hubs.toml: those the recording saw commanded are
+        # a subset of the model's, and a resource nobody commands has no command to compare.
+        self.loop = ControlLoop(self.core, RunRecorder(self.core, self.clock, self.sink),
+                                (r.name for r in self.model.resources), self.clock)
+        self.loop.request(meta.requested)
+        self.requests = self.loop.requests()
         self.unhealthy: dict[str, str] = {}
+        self.held: frozenset[str] = frozenset()  # resources held until their mirror comes (controller/hold.py)
         self.asked: dict[int, PlanRequest] = {}
         self._apply: dict[RecordKind, Callable[[Record], None]] = {
             RecordKind.STATE: self._state, RecordKind.WATCHDOG: self._watchdog, RecordKind.TICK: self._tick,
@@ -200,8 +196,7 @@ class Replayer:
     # --- the inputs -----------------------------------------------------------------------
     def _state(self, record: Record) -> None:
         data: StateRecord = record.data  # type: ignore[assignment]
-        if data.values:
-            self.core.ingest(data.values)
+        self.loop.ingest(data.values)
 
     def _watchdog(self, record: Record) -> None:
         data: WatchdogRecord = record.data  # type: ignore[assignment]
@@ -211,19 +206,16 @@ class Replayer:
             self.unhealthy.pop(record.key, None)
 
     def _tick(self, _record: Record) -> None:
-        core = self.core
-        core.set_disabled(frozenset(self.unhealthy) | self.recorder.held)
-        core.tick()
-        self.recorder.ticked(self.unhealthy)
-        self.recorder.send_changed()
+        self.loop.tick(self.unhealthy, self.held)
 
     def _command(self, record: Record) -> None:
         # The controller also sends at its command rate, between ticks: a value that changed since the last
         # tick (a mirror taken, a force) goes out then. Here is such a moment: what would it send?
-        self.recorder.send_changed([record.key])
+        self.loop.resend(self.held, [record.key])
 
     def _hold(self, record: Record) -> None:
         data: HoldRecord = record.data  # type: ignore[assignment]
+        self.held = frozenset(data.resources)
         self.core.set_unknown(data.paths)
 
     def _restore(self, record: Record) -> None:
@@ -235,9 +227,8 @@ class Replayer:
         self.requests.apply(data.request)
 
     def _plan_request(self, _record: Record) -> None:
-        request = self.core.plan_request()
+        request = self.loop.plan_request()
         if request is not None:
-            self.recorder.plan_request(request)
             self.asked[request.generation] = request
 
     def _plan(self, record: Record) -> None:
@@ -245,14 +236,14 @@ class Replayer:
         request = self.asked.get(data.generation)
         if request is None:
             return  # not asked for in the replay: the plan requests already differ
-        improvement = data.answer == "improvement"
-        replan = self.replans and not improvement
-        answer = self.core.solve(request) if replan else self._recorded_answer(request, data)
-        if improvement:
+        if data.answer == "improvement":
+            answer = self._recorded_answer(request, data)
             assert isinstance(answer, Plan)
-            self.recorder.plan(request, answer, taken=self.core.improve(request, answer), improvement=True)
+            self.loop.improve(request, answer)
+        elif self.replans:
+            self.loop.solve(request)
         else:
-            self.recorder.plan(request, answer, taken=self.core.adopt(request, answer))
+            self.loop.adopt(request, self._recorded_answer(request, data))
 
     def _recorded_answer(self, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
         stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
