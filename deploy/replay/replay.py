@@ -29,6 +29,7 @@ from typing import Any
 import msgspec
 
 from common.model import Model
+from common.model.compiled import CompiledModel
 from common.recording.reader import Record, Run
 from common.recording.schema import (
     CommandRecord,
@@ -237,22 +238,24 @@ class Replayer:
         if request is None:
             return  # not asked for in the replay: the plan requests already differ
         if data.answer == "improvement":
-            answer = self._recorded_answer(request, data)
+            answer = recorded_answer(self.compiled, request, data)
             assert isinstance(answer, Plan)
             self.loop.improve(request, answer)
         elif self.replans:
             self.loop.solve(request)
         else:
-            self.loop.adopt(request, self._recorded_answer(request, data))
+            self.loop.adopt(request, recorded_answer(self.compiled, request, data))
 
-    def _recorded_answer(self, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
-        stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
-        if data.found:
-            moves = [(self.compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
-            return plan_from_moves(self.compiled, request.start, moves, tuple(data.goals), stats)
-        if not request.goals:
-            return None
-        return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
+
+def recorded_answer(compiled: CompiledModel, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
+    """A recorded plan answer rebuilt for `request`: its steps replayed on the request's start state."""
+    stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
+    if data.found:
+        moves = [(compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
+        return plan_from_moves(compiled, request.start, moves, tuple(data.goals), stats)
+    if not request.goals:
+        return None
+    return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
 
 
 def _show(data: Any) -> str:
