@@ -12,7 +12,7 @@ import pytest
 
 from common.bus import Sample
 from common.config import StationConfig, load_station
-from common.ctl import HubGone, PlanFound, ReplanCause, Replanned, ReplanReason
+from common.ctl import EVENT_WINDOW, Event, HubGone, PlanFound, ReplanCause, Replanned, ReplanReason, StatusMessage
 from common.membus import MemoryBus, MemoryHub
 from common.messages import HubStatus
 from common.model import Model, Value
@@ -23,6 +23,7 @@ from controller.outbox import CommandVariable, Outbox
 from controller.service import ControllerService
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import emulated_delays, run_in_process
+from deploy.local.station import Progress
 from deploy.replay.replay import compared, is_decision, recorded_answer
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -173,3 +174,22 @@ def test_the_event_log_keeps_its_newest_events_and_a_cursor_reads_what_is_new_an
     with pytest.raises(ValueError):
         EventLog(bound=0)
 
+
+
+def test_hubctl_up_counts_the_faults_of_the_whole_run_not_of_the_last_statuss_window() -> None:
+    progress = Progress(lambda _line: None, 0)
+    logged: list[Event] = []
+
+    def status(controller: str) -> StatusMessage:
+        return StatusMessage(station="s", controller=controller, time=0.0, uptime=0.0,
+                             events=logged[-EVENT_WINDOW:], events_total=len(logged))
+
+    for i in range(30):  # 30 faults, fewer than a window at a time between two statuses
+        logged += [HubGone(f"hub{i}"), PlanFound("Op", 1)]
+        progress.update(status("c-1"))
+    progress.update(status("c-1"))  # nothing new
+    assert progress.faults == 30 and progress.last_fault == HubGone("hub29")
+    logged.clear()
+    logged.append(HubGone("again"))
+    progress.update(status("c-2"))  # a restarted controller: its log starts afresh
+    assert progress.faults == 31 and progress.last_fault == HubGone("again")
