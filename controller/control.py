@@ -1,9 +1,10 @@
 """The controller's decisions, without I/O: which operations run, which goals are planned for,
 when to replan, and what an unreachable goal does to its operation.
 
-`ControlCore` owns the global state tuple. The process around it (in-process runner or
-the Zenoh controller) feeds it measurements, calls `tick()`, runs `plan_request()` off
-the event loop, hands the result back with `adopt()`, and publishes what changed.
+`ControlCore` owns the global state tuple. The control loop around it (controller/loop.py, which the
+Zenoh controller, the in-process runner and replay drive) feeds it measurements, calls `tick()`, asks
+`plan_request()` (planned off the event loop when live), hands the result back with `adopt()`, and
+sends what changed. Every decision and note goes into its event log (controller/events.py).
 """
 
 from __future__ import annotations

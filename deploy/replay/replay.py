@@ -1,4 +1,5 @@
-"""Replay a recorded run (common/recording) on a fresh controller core in virtual time and compare decisions.
+"""Replay a recorded run (common/recording) on a fresh control loop (controller/loop.py, the one the live
+controller and the in-process runner drive) in virtual time and compare decisions.
 
 The inputs, in the recorded order and at the recorded times (the core's clock is set to each record's
 `t`): the values loaded, the resources held, the measured values the controller took, the watchdog's verdicts
