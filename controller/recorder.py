@@ -208,14 +208,15 @@ class RunRecorder:
                 if old != new:
                     sink.put(t, RecordKind.OPERATION, name, OperationRecord(before=str(old), after=str(new)))
             self._op_values = values
-        news = self.core.events.log.since(self._events_read)
-        if news.missed:  # called after every step, far below the log's bound: not expected
-            log.error("the run recording missed %d events of the controller's log", news.missed)
-        if news.events:
+        events = self.core.events.log
+        if events.total != self._events_read:  # after every tick: nothing new is the common case
+            news = events.since(self._events_read)
+            if news.missed:  # called after every step, far below the log's bound: not expected
+                log.error("the run recording missed %d events of the controller's log", news.missed)
             t = self.clock()
             for event in news.events:
                 sink.put(t, RecordKind.EVENT, type(event).__struct_config__.tag, event)  # type: ignore[arg-type]
-        self._events_read = news.cursor
+            self._events_read = news.cursor
 
     def _operation_values(self, state: State) -> tuple[Value, ...]:
         return self._op_values_of(state)
