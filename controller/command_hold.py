@@ -54,7 +54,7 @@ class CommandHold:
             event = MirrorsMissing(by_hub)
             log.warning("no mirror within %.1f s from %s: held, sent no command until their mirrors arrive",
                         waited_s, event.report)
-            self.core.events.log.append(event)
+            self.core.events.log.emit(event)
 
     def arrived(self, resource: str, mirror: Mapping[str, Value] | None, status: str) -> None:
         """A held resource's state came: its mirror's values (None if it has none) and its hub's status."""
@@ -74,7 +74,7 @@ class CommandHold:
         self._set_held(self.held - {resource})
         event = HoldReleased(resource, source)
         log.info("%s", event.text)
-        self.core.events.log.append(event)
+        self.core.events.log.emit(event)
 
     def _set_held(self, resources: Sequence[str] | frozenset[str]) -> None:
         self.held = frozenset(resources)

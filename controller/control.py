@@ -1,9 +1,10 @@
 """The controller's decisions, without I/O: which operations run, which goals are planned for,
 when to replan, and what an unreachable goal does to its operation.
 
-`ControlCore` owns the global state tuple. The process around it (in-process runner or
-the Zenoh controller) feeds it measurements, calls `tick()`, runs `plan_request()` off
-the event loop, hands the result back with `adopt()`, and publishes what changed.
+`ControlCore` owns the global state tuple. The control loop around it (controller/loop.py, which the
+Zenoh controller, the in-process runner and replay drive) feeds it measurements, calls `tick()`, asks
+`plan_request()` (planned off the event loop when live), hands the result back with `adopt()`, and
+sends what changed. Every decision and note goes into its event log (controller/events.py).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from typing import Protocol
 from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.wire.ctl import (
-    Event,
     Livelock,
     NoPlanFound,
     PlanFound,
@@ -30,6 +30,7 @@ from common.wire.ctl import (
 )
 
 from .engine import Engine, LostEffect, PlanProgress, TickResult
+from .events import EventLog
 from .livelock import RETRIES as LIVELOCK_RETRIES
 from .livelock import LivelockWatch, Repeat
 from .planner import Budget, NoPlan, Plan, Planner
@@ -90,7 +91,7 @@ class ControlEvents:
     plans: int = 0
     no_plans: int = 0
     abilities_started: int = 0
-    log: list[Event] = field(default_factory=list)
+    log: EventLog = field(default_factory=EventLog)
 
 
 def anytime_answers(planner: Planner, request: PlanRequest,
@@ -275,7 +276,8 @@ class ControlCore:
     def _check_safety(self) -> None:
         events = self.safety.check(self.state, self.unknown)
         if events:
-            self.events.log.extend(events)
+            for event in events:
+                self.events.log.emit(event)
             if not self.safety.stopped:  # devices went on meanwhile, as after a pause: plan afresh
                 self._want_plan(ReplanCause(ReplanReason.SAFE_AGAIN))
 
@@ -302,7 +304,7 @@ class ControlCore:
         if plan is None:
             return False
         self._follow(plan)
-        self.events.log.append(PlanKept(len(rest), cause))
+        self.events.log.emit(PlanKept(len(rest), cause))
         return True
 
     def _only_finished_left(self, goals: frozenset[str]) -> bool:
@@ -328,7 +330,7 @@ class ControlCore:
         self.requested_goals = frozenset(goals)
         if self.need_plan_reason.reason is not ReplanReason.START and goals:
             self.events.replans += 1
-            self.events.log.append(Replanned(self.need_plan_reason))
+            self.events.log.emit(Replanned(self.need_plan_reason))
         reason, self.need_plan_reason = self.need_plan_reason, None
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason,
                            reuse=repeat is Repeat.FIRST)
@@ -361,7 +363,7 @@ class ControlCore:
         said = lost.effect if lost is not None else ""
         if said not in self._livelocks_said:  # said once, not at every retry
             self._livelocks_said.add(said)
-            self.events.log.append(Livelock(names, lost.effect if lost is not None else "", diagnosis, count))
+            self.events.log.emit(Livelock(names, lost.effect if lost is not None else "", diagnosis, count))
         self.progress = None
 
     def error_text(self, name: str) -> str:
@@ -382,7 +384,7 @@ class ControlCore:
     def solve(self, request: PlanRequest) -> Plan | NoPlan | None:
         result, note = solve_goals(self.planner, request, self.budget)
         if note is not None:
-            self.events.log.append(note)
+            self.events.log.emit(note)
         return result
 
     def adopt(self, request: PlanRequest, result: Plan | NoPlan | None) -> bool:
@@ -408,7 +410,7 @@ class ControlCore:
                     news.append(name)
                 self._set_op_state(name, OperationState.ERROR)
             if news:  # said once per goal and reason, not at every retry
-                self.events.log.append(NoPlanFound(news, result.proven, result.reason))
+                self.events.log.emit(NoPlanFound(news, result.proven, result.reason))
             self._want_plan(ReplanCause(ReplanReason.GOALS_WITHOUT_PLAN))
             self.progress = None
             return True
@@ -419,7 +421,7 @@ class ControlCore:
                 if self.op_state(name) is OperationState.ERROR:
                     self._set_op_state(name, OperationState.EXECUTING)
                 if not error.livelock:  # it always had plans: its retry is no news
-                    self.events.log.append(PlanFound(name, error.attempts))
+                    self.events.log.emit(PlanFound(name, error.attempts))
         # Measurements that arrived while planning are matched against the plan's trace
         # by the next tick, which asks again if the state has left it.
         self._follow(result)
@@ -449,7 +451,7 @@ class ControlCore:
             if kept is None:
                 continue
             self._follow(kept)
-            self.events.log.append(ShorterPlan(len(kept.steps), left, better.stats.method))
+            self.events.log.emit(ShorterPlan(len(kept.steps), left, better.stats.method))
             return True
         return False
 

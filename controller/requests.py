@@ -142,7 +142,7 @@ class Requests:
         else:
             reply = handler(request)
         event = RequestAnswered(request.describe(), reply.accepted, reply.reason, request.origin)
-        self.core.events.log.append(event)
+        self.core.events.log.emit(event)
         log.info("%s", event.text)
         self.answered(request, reply)
         if reply.accepted:

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import msgspec
 
 from common.bus.protocol import Bus, Request
 from common.model.compiled import CompiledModel, State
 from common.wire.ctl import (
-    Event,
     PlanDetails,
     PlanInfo,
     PlanStepInfo,
@@ -36,6 +35,7 @@ from common.wire.keys import Keys
 from common.wire.messages import encode
 
 from .control import ControlCore
+from .events import EventLog
 from .planner import Plan, PlanStep
 
 FULL_EVERY_S = 5.0  # a full status at least this often: ~7 kB on the reference station
@@ -114,13 +114,14 @@ class StatusDiet:
         self._events_sent = 0
         self._full_at = -math.inf
 
-    def next(self, picture: StatusMessage, log: Sequence[Event], now: float) -> StatusMessage:
+    def next(self, picture: StatusMessage, log: EventLog, now: float) -> StatusMessage:
         """The status to publish for `picture` (built with the last EVENT_WINDOW events of `log`)."""
         self.seq += 1
         previous = self.last_full
-        self.last_full = msgspec.structs.replace(picture, seq=self.seq, full=True, events_total=len(log))
-        new_events = list(log[self._events_sent:])
-        self._events_sent = len(log)
+        self.last_full = msgspec.structs.replace(picture, seq=self.seq, full=True, events_total=log.total)
+        news = log.since(self._events_sent)  # a delta carries what is new and still held
+        new_events = news.events
+        self._events_sent = news.cursor
         if previous is None or now - self._full_at >= self.full_every_s:
             self._full_at = now
             return self.last_full

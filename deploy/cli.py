@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from common.config.hubs_toml import ConfigError, ConfigProblem, load_config, load_station
+from common.config.hubs_toml import ConfigError, ConfigProblem, StationConfig, load_config, load_station
 from common.config.modes import DeviceMode, argument
 from common.model import Model, ParseError, parse_predicate
 from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
@@ -94,20 +94,21 @@ def cmd_plan(args: argparse.Namespace) -> int:
 DEFAULT_CONFIG = "hubs.toml"
 
 
-def _station_model(args: argparse.Namespace) -> Model:
-    """The model `up --in-process` runs: `--model` if given, else the one `--config` names.
+def _in_process_station(args: argparse.Namespace) -> tuple[Model, StationConfig | None]:
+    """The model `up --in-process` runs, and the hubs.toml it comes with (None: a model without one):
+    `--model` if given (with `--config` if given too: its devices' delays), else the one `--config` names.
 
     Without either, ./hubs.toml's model, or the reference station where there is no
     hubs.toml (run from outside a station's directory)."""
-    if args.model is not None:
-        return load_model(args.model)
-    if args.config is None and not Path(DEFAULT_CONFIG).is_file():
-        return load_model(DEFAULT_MODEL)
     path = Path(args.config or DEFAULT_CONFIG)
-    if not path.is_file():
+    if args.config is not None and not path.is_file():
         raise ConfigError([ConfigProblem(str(path), None, "", "no such file (--config)")])
-    _, model = load_station(path)
-    return model
+    if args.model is not None:
+        return load_model(args.model), load_config(path) if args.config is not None else None
+    if not path.is_file():
+        return load_model(DEFAULT_MODEL), None
+    config, model = load_station(path)
+    return model, config
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -135,9 +136,9 @@ def cmd_up(args: argparse.Namespace) -> int:
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record))
     from controller.control import VIRTUAL_BUDGET
 
-    from .local.inprocess import run_in_process
+    from .local.inprocess import emulated_delays, run_in_process
 
-    model = _station_model(args)
+    model, station = _in_process_station(args)
     print(f"statehub: running station {model.name} in one process, emulated devices "
           f"(speed x{args.speed}, seed {args.seed})", flush=True)
     budget = replace(VIRTUAL_BUDGET, first_expansions=args.plan_expansions, improve_expansions=args.improve_expansions)
@@ -148,7 +149,9 @@ def cmd_up(args: argparse.Namespace) -> int:
         config = args.config or (DEFAULT_CONFIG if args.model is None and Path(DEFAULT_CONFIG).is_file() else None)
         reference = args.model or (load_config(config).station.model if config else DEFAULT_MODEL)
         recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget)
-    summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None, realtime=args.realtime,
+    summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None,
+                             delays=emulated_delays(station) if station is not None else None,
+                             realtime=args.realtime, time_limit=args.time_limit,
                              report=lambda line: print(line, flush=True), budget=budget, recording=recording)
     print()
     print(f"{'finished' if summary.finished else 'NOT finished'}: {summary.operations_finished}/"
@@ -188,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     up = sub.add_parser(
         "up", help="run the whole station on this machine (controller and every hub as processes) to completion")
-    # No defaults here: whether --config or --model was given decides which model runs (_station_model).
+    # No defaults here: whether --config or --model was given decides which model runs (_in_process_station).
     up.add_argument("--model", help="station model as module:function (default: the one --config names; "
                                     "with --in-process it wins over --config)")
     up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
@@ -199,7 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
                     help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")
     up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")
-    up.add_argument("--time-limit", type=positive, default=900.0, help="give up after this many seconds")
+    up.add_argument("--time-limit", type=positive, default=900.0,
+                    help="give up after this many seconds (with --in-process: of emulated time)")
     up.add_argument("--resume", action="store_true", help="keep the controller's persisted state of the last run")
     up.add_argument("--hold", action="store_true",
                     help="start no operation: the operator starts them from `hubctl console`")

@@ -36,8 +36,8 @@ async def service(tmp_path: Path) -> AsyncIterator[ControllerService]:
 
 def nr_state(service: ControllerService, run_m: bool | None, seq: int) -> bytes:
     codec = service.codecs["nr"]
-    service.command_seq["nr"] = max(service.command_seq["nr"], 3)  # a mirror of a seq it sent, not a forged one
-    command = codec.command({"run_c": bool(run_m)}, seq=3, controller=service.controller_id)
+    # seq 0, the first command's: the controller may have sent it, so the mirror is not a forged one
+    command = codec.command({"run_c": bool(run_m)}, seq=0, controller=service.controller_id)
     return codec.encode_state(codec.state({"run_m": run_m, "tqr_m": False, "fail_m": False}, status=HubStatus.OK,
                                           seq=seq, hub="pi-tool", mirror=command))
 
@@ -45,35 +45,32 @@ def nr_state(service: ControllerService, run_m: bool | None, seq: int) -> bytes:
 async def test_a_batch_is_merged_and_a_malformed_state_is_dropped_and_logged_once(
         service: ControllerService, caplog: pytest.LogCaptureFixture) -> None:
     keys = service.config.keys
-    routes = service._state_routes()
-    assert set(routes) == {keys.state("nr"), keys.state("ur")}
+    assert set(service.ingest.routes) == {keys.state("nr"), keys.state("ur")}
     index = service.compiled.index
     ur_before = service.core.state[index["ur.pos_m"]]
     batch = [Sample(keys.state("ur"), b"\x93garbage"),  # not a state: dropped, the rest of the batch stands
              Sample(keys.state("nr"), nr_state(service, True, 7)),
              Sample(keys.ctl("status"), b"")]  # not a resource's state key: ignored
     with caplog.at_level(logging.WARNING, logger="statehub.controller"):
-        service._ingest_batch(batch, routes)
-        service._ingest_batch(batch, routes)
+        changed = service.ingest.batch(batch)
+        service.ingest.batch(batch)
     assert service.core.state[index["nr.run_m"]] is True
     assert service.core.state[index["ur.pos_m"]] == ur_before
-    assert service._dirty.is_set()
+    assert changed  # the service ticks
     dropped = [r.getMessage() for r in caplog.records if "dropped state" in r.getMessage()]
     assert len(dropped) == 1 and keys.state("ur") in dropped[0]  # logged once per key and interval
-    # The watchdog heard from nr (mirroring our seq 3), not from ur; nr's mirror was taken once.
-    assert service.watchdog.watches["nr"].mirrored_seq == 3 and service.watchdog.watches["nr"].ever_seen
+    # The watchdog heard from nr (mirroring our seq 0), not from ur; nr's mirror was taken once.
+    assert service.watchdog.watches["nr"].mirrored_seq == 0 and service.watchdog.watches["nr"].ever_seen
     assert not service.watchdog.watches["ur"].ever_seen
-    assert service.mirrors == {"nr": {"run_c": True}}
+    assert service.ingest.mirrors == {"nr": {"run_c": True}}
     assert len(service.meter.ages) == 2
 
 
 async def test_an_unknown_value_keeps_the_last_known_one_and_no_change_asks_for_no_tick(
         service: ControllerService) -> None:
     keys = service.config.keys
-    routes = service._state_routes()
     index = service.compiled.index
-    service._ingest_batch([Sample(keys.state("nr"), nr_state(service, True, 1))], routes)
-    service._dirty.clear()
-    service._ingest_batch([Sample(keys.state("nr"), nr_state(service, None, 2))], routes)  # device lost: unknown
+    assert service.ingest.batch([Sample(keys.state("nr"), nr_state(service, True, 1))])
+    changed = service.ingest.batch([Sample(keys.state("nr"), nr_state(service, None, 2))])  # device lost: unknown
     assert service.core.state[index["nr.run_m"]] is True
-    assert not service._dirty.is_set()
+    assert not changed

@@ -94,7 +94,7 @@ def test_start_requests_and_says_what_the_operation_waits_for(rig: Rig) -> None:
     assert rig.op("TightenBolt1") == OperationState.INITIAL  # its precondition does not hold yet
     again = rig.ask("start", operation="TightenBolt1")
     assert not again.accepted and "already started" in again.reason
-    said = rig.core.events.log[-1]
+    (said,) = rig.core.events.log.recent(1)
     assert isinstance(said, RequestAnswered) and (said.request, said.accepted) == ("start TightenBolt1", False)
     assert said.text.startswith("console (test): start TightenBolt1 refused: ")
 

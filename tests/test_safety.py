@@ -134,7 +134,7 @@ def test_a_forbidden_state_on_measured_values_stops_deliberate_transitions_and_i
 
     core.ingest({"nr.run_m": False, "rsp.tool_m": "none", "ur.pos_m": HOME})
     core.tick()
-    assert core.events.log[-2:] == [ForbiddenStateCleared(TOOL_RELEASED), ForbiddenStateCleared(NUTRUNNER_RUNS)]
+    assert core.events.log.recent(2) == [ForbiddenStateCleared(TOOL_RELEASED), ForbiddenStateCleared(NUTRUNNER_RUNS)]
     assert core.need_plan_reason is not None and core.need_plan_reason.reason is ReplanReason.SAFE_AGAIN
     plan(core)
     assert deliberate_fired(core, core.tick().fired), "deliberate transitions go on once it cleared"

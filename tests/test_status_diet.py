@@ -17,7 +17,7 @@ import msgspec
 from common.bus.memory_bus import MemoryBus
 from common.model import OperationState
 from common.wire.ctl import (
-    ConsoleEvent,
+    Event,
     HubGone,
     OperationInfo,
     PlanInfo,
@@ -26,8 +26,9 @@ from common.wire.ctl import (
     done_mask,
 )
 from controller.console.statusview import StatusFollower, StatusView, fetch_plan
-from controller.service import STATUS_PERIOD_S
+from controller.events import EventLog
 from controller.statusfeed import StatusDiet
+from controller.statuspublisher import STATUS_PERIOD_S
 from tests.test_memory_station import REFERENCE, MemoryStation, station_at  # noqa: F401  (fixture)
 
 BUDGET_BYTES_PER_S = 20_000  # the bound on ctl/status during a reference run
@@ -36,7 +37,7 @@ RUN_OPERATIONS = 20
 
 
 def picture(uptime: float, ops: dict[str, OperationState], ages: dict[str, float | None], plan: PlanInfo,
-            events: list[ConsoleEvent]) -> StatusMessage:
+            events: list[Event]) -> StatusMessage:
     return StatusMessage(
         station="s", controller="c-1", time=uptime, uptime=uptime,
         operations=[OperationInfo(name, state) for name, state in ops.items()],
@@ -49,7 +50,7 @@ def test_deltas_merge_back_into_the_full_pictures_and_carry_only_what_changed() 
     diet, view = StatusDiet(full_every_s=100.0), StatusView()
     ops = {f"Op{i}": OperationState.INITIAL for i in range(30)}
     ages: dict[str, float | None] = {f"r{i}": 0.02 for i in range(10)}
-    log: list[ConsoleEvent] = []
+    log = EventLog()
     plan = PlanInfo(1, ["Op3"], 40, done_mask((), 40))
     sizes = []
     for t in range(60):
@@ -57,17 +58,17 @@ def test_deltas_merge_back_into_the_full_pictures_and_carry_only_what_changed() 
             ops[f"Op{t % 30}"] = OperationState.EXECUTING
         if t == 20:
             ages["r4"] = None
-            log.append(HubGone("hub"))
+            log.emit(HubGone("hub"))
         ages["r1"] = 0.01 * (t % 5)  # fresh: shown "< 1 s" whatever the exact age, so never resent
         plan = msgspec.structs.replace(plan, done=done_mask(range(t % plan.steps), plan.steps)) if t % 3 else plan
         if t == 40:
             plan = PlanInfo(2, ["Op3", "Op5"], 12, done_mask((), 12))
-        whole = picture(float(t), ops, ages, plan, log)
+        whole = picture(float(t), ops, ages, plan, log.recent(20))
         sent = diet.next(whole, log, now=float(t))
         sizes.append(len(msgspec.msgpack.encode(sent)))
         merged = view.apply(msgspec.msgpack.decode(msgspec.msgpack.encode(sent), type=StatusMessage))
         assert merged is not None
-        assert merged.operations == whole.operations and merged.plan == whole.plan and merged.events == log[-20:]
+        assert merged.operations == whole.operations and merged.plan == whole.plan and merged.events == log.recent(20)
         assert [(h.resource, h.healthy) for h in merged.health] == [(h.resource, h.healthy) for h in whole.health]
         if t:
             assert not sent.full and {op.name for op in sent.operations} <= {f"Op{t % 30}"}
@@ -80,12 +81,12 @@ def test_a_missed_delta_is_mended_by_the_full_picture_and_an_older_one_is_ignore
     diet, view = StatusDiet(full_every_s=100.0), StatusView()
     ops = {"A": OperationState.INITIAL, "B": OperationState.INITIAL}
     plan = PlanInfo(0)
-    first = diet.next(picture(0.0, ops, {}, plan, []), [], 0.0)
+    first = diet.next(picture(0.0, ops, {}, plan, []), EventLog(), 0.0)
     assert view.apply(first) == first
     ops["B"] = OperationState.EXECUTING
-    diet.next(picture(1.0, ops, {}, plan, []), [], 1.0)  # missed
+    diet.next(picture(1.0, ops, {}, plan, []), EventLog(), 1.0)  # missed
     ops["A"] = OperationState.EXECUTING
-    third = diet.next(picture(2.0, ops, {}, plan, []), [], 2.0)
+    third = diet.next(picture(2.0, ops, {}, plan, []), EventLog(), 2.0)
     assert [op.name for op in third.operations] == ["A"]  # B changed in the missed one, not since
     assert view.apply(third) is None and view.needs_full
     assert diet.last_full is not None

@@ -1,8 +1,8 @@
 """The controller's hooks into its run recording (common/recording): what it took in and what it decided.
 
-One `RunRecorder` per run, called by the controller service, the in-process runner and `hubctl replay`
-at the same points, so that a replay's records compare one to one with the recording's. Without a
-sink (recording off) every hook returns at once.
+One `RunRecorder` per run, called by the control loop (controller/loop.py) that the controller service, the
+in-process runner and `hubctl replay` drive, so at the same points in each: a replay's records compare one
+to one with the recording's. Without a sink (recording off) every hook returns at once.
 
 Its clock is the core's clock: each record's `t` is what the core read at that moment, so that a replay
 that sets the core's clock to `t` makes the same time-dependent decisions (retries of goals without a plan).
@@ -22,10 +22,11 @@ from typing import Any, Protocol
 import msgspec
 
 from common.config.hubs_toml import RecordingConfig
-from common.model import Kind, Model, Value
+from common.model import Kind, Model, OperationState, Value
 from common.model.compiled import State
 from common.wire.ctl import ConsoleReply, ConsoleRequest, PlannedAlone
 from controller.control import ControlCore, PlanRequest
+from controller.outcome import RunOutcome
 from controller.planner import NoPlan, Plan
 from controller.recording.schema import (
     CommandRecord,
@@ -69,6 +70,16 @@ class StepClock:
         return self.now
 
 
+class VirtualClock:
+    """The clock of a run in virtual time (in-process, replay): it moves only when its runner sets `now`."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
 class Sink(Protocol):
     def put(self, t: float, kind: RecordKind, key: str, data: msgspec.Struct) -> None: ...
     def ingested(self, t: float, changed: dict[str, Value], hub_states: Sequence[HubState]) -> None: ...
@@ -89,16 +100,13 @@ class RunRecorder:
         self._op_values_of: Callable[[State], tuple[Value, ...]] = itemgetter(*indices) if len(indices) > 1 \
             else lambda state: tuple(state[i] for i in indices)
         self._op_values = self._operation_values(core.state)
-        self._said = len(core.events.log)
+        self._events_read = core.events.log.total  # the event log's cursor: what `after` recorded
         self._unhealthy: dict[str, str] = {}
         self._unhealthy_keys: tuple[str, ...] = ()
         self.command_paths = {
             r.name: [(v.path, compiled.index[v.path]) for v in r.variables if v.kind is Kind.COMMAND]
             for r in core.model.resources}
         self.command_paths = {r: paths for r, paths in self.command_paths.items() if paths}
-        self._seq = dict.fromkeys(self.command_paths, 0)
-        self._sent: dict[str, tuple[Value, ...]] = {}
-        self.held: frozenset[str] = frozenset()
         if sink is not None:
             core.listener = self
 
@@ -113,9 +121,9 @@ class RunRecorder:
             self.sink.put(self.clock(), RecordKind.RESTORE, "load", RestoreRecord(values=dict(values)))
 
     def unknown_set(self, paths: list[str]) -> None:
-        self.held = frozenset(path.split(".", 1)[0] for path in paths)
         if self.sink is not None:
-            self.sink.put(self.clock(), RecordKind.HOLD, "", HoldRecord(resources=sorted(self.held), paths=paths))
+            held = sorted({path.split(".", 1)[0] for path in paths})
+            self.sink.put(self.clock(), RecordKind.HOLD, "", HoldRecord(resources=held, paths=paths))
 
     def requested(self, operations: Iterable[str]) -> None:
         """The operations requested at start (persisted, or all): a replay requests them too."""
@@ -161,26 +169,12 @@ class RunRecorder:
 
     # --- decisions ----------------------------------------------------------------------
     def command(self, resource: str, seq: int) -> None:
-        """A changed command of `resource`, as sent with `seq` (its values: the core's state now)."""
+        """A changed command of `resource`, as sent with `seq` (its values: the core's state now; the
+        outbox, controller/outbox.py, decides which commands changed and their seq)."""
         if self.sink is not None:
             state = self.core.state
             values = {path: state[i] for path, i in self.command_paths[resource]}
             self.sink.put(self.clock(), RecordKind.COMMAND, resource, CommandRecord(values=values, seq=seq))
-
-    def send_changed(self, resources: Iterable[str] | None = None) -> None:
-        """For the runners without a controller service: record what it would send now, as it does after a
-        tick (every resource, in model order) or at its command rate: a resource's command whose values
-        differ from those it was last sent, with a new seq (0 for the first), none to a held resource."""
-        state = self.core.state
-        for resource in self.command_paths if resources is None else resources:
-            if resource in self.held:
-                continue
-            current, previous = tuple(state[i] for _, i in self.command_paths[resource]), self._sent.get(resource)
-            if current != previous:
-                if previous is not None:
-                    self._seq[resource] += 1
-                self._sent[resource] = current
-                self.command(resource, self._seq[resource])
 
     def plan_request(self, request: PlanRequest) -> None:
         if self.sink is not None:
@@ -213,18 +207,21 @@ class RunRecorder:
                 if old != new:
                     sink.put(t, RecordKind.OPERATION, name, OperationRecord(before=str(old), after=str(new)))
             self._op_values = values
-        log = self.core.events.log
-        if len(log) > self._said:
+        events = self.core.events.log
+        if events.total != self._events_read:  # after every tick: nothing new is the common case
+            news = events.since(self._events_read)
+            if news.missed:  # called after every step, far below the log's bound: not expected
+                log.error("the run recording missed %d events of the controller's log", news.missed)
             t = self.clock()
-            for event in log[self._said:]:
+            for event in news.events:
                 sink.put(t, RecordKind.EVENT, type(event).__struct_config__.tag, event)  # type: ignore[arg-type]
-            self._said = len(log)
+            self._events_read = news.cursor
 
     def _operation_values(self, state: State) -> tuple[Value, ...]:
         return self._op_values_of(state)
 
     # --- the end ------------------------------------------------------------------------
-    def finish(self, outcome: str, note: str = "") -> None:
+    def finish(self, outcome: RunOutcome, note: str = "") -> None:
         """Write the run's outcome and counts, and close the recording."""
         sink = self.sink
         if sink is None:
@@ -232,10 +229,10 @@ class RunRecorder:
         self.after()
         core = self.core
         events = core.events
-        done = sum(1 for name in self._operations if core.op_state(name).value == "finished")
-        sink.update_meta(outcome=outcome, note=note, ended=time.time(), duration=self.clock(), operations_done=done,
-                         operations_total=len(self._operations), plans=events.plans, replans=events.replans,
-                         faults=sum(1 for e in events.log if e.fault))
+        done = sum(1 for name in self._operations if core.op_state(name) is OperationState.FINISHED)
+        sink.update_meta(outcome=outcome.recorded, note=note, ended=time.time(), duration=self.clock(),
+                         operations_done=done, operations_total=len(self._operations), plans=events.plans,
+                         replans=events.replans, faults=events.log.faults)
         sink.close()
         self.sink = None
 

@@ -1,7 +1,10 @@
 """Run a whole station in one process against its model's own effects (emulated devices).
 
-Time is virtual by default (the run is as fast as planning allows); `realtime=True`
-sleeps through the emulated delays as a live station would.
+A thin shell around the controller's own loop (controller/loop.py), with an effect emulator for the
+hubs: tick, plan (here and now, by counts), let the devices' effects fall due, and move virtual time on
+to the next one. Time is virtual by default (the run is as fast as planning allows); `realtime=True`
+sleeps through the emulated delays as a live station would. Each device's `delay` of hubs.toml applies
+as it does to `hubctl up`'s emulated hubs.
 """
 
 from __future__ import annotations
@@ -10,18 +13,25 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from common.config.hubs_toml import StationConfig
 from common.model import Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
+from controller.loop import ControlLoop
+from controller.outcome import RunOutcome
 from controller.planner import Budget
-from controller.recording.hooks import RunRecorder, Sink
+from controller.recording.hooks import RunRecorder, Sink, VirtualClock
 from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
+
+Reporter = Callable[[str], None]
+MAX_TICKS_AT_ONCE = 100  # ticks at one instant of virtual time before the devices get their turn
+STUCK_EVENTS_SHOWN = 5
 
 
 @dataclass
 class RunSummary:
-    finished: bool
+    outcome: RunOutcome
     operations_finished: int
     operations_total: int
     abilities: int
@@ -32,11 +42,17 @@ class RunSummary:
     wall_seconds: float
     planning_seconds: float
     reason: str = ""
-    log: list[str] = field(default_factory=list)  # the event log, as text
+    log: list[str] = field(default_factory=list)  # the event log (its newest entries), as text
+
+    @property
+    def finished(self) -> bool:
+        return self.outcome is RunOutcome.FINISHED
 
 
-Reporter = Callable[[str], None]
-MAX_TICKS_AT_ONCE = 100  # ticks at one instant of virtual time before the devices get their turn
+def emulated_delays(config: StationConfig) -> dict[str, float]:
+    """Each device's `delay` in hubs.toml (seconds an effect takes at speed 1), where it gives one."""
+    return {resource: float(hub.devices[resource].params["delay"])
+            for resource, hub in config.resources.items() if "delay" in hub.devices[resource].params}
 
 
 def run_in_process(
@@ -45,34 +61,37 @@ def run_in_process(
     speed: float = 1.0,
     seed: int = 0,
     failure: Mapping[str, float] | None = None,
+    delays: Mapping[str, float] | None = None,
     realtime: bool = False,
     time_limit: float = 3600.0,
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
 ) -> RunSummary:
-    """`recording`: where the run is recorded (controller/recording/hooks.py), closed when it ends."""
+    """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
+    type's default elsewhere); `time_limit`: emulated seconds; `recording`: where the run is recorded
+    (controller/recording/hooks.py), closed when it ends."""
     say = report or (lambda _line: None)
     # The model tables are built before the first request, as the controller's planner process does.
     stack = build_controller_stack(model, prepare=True)
     compiled = stack.compiled
-    now = 0.0
-    core = stack.control_core(lambda: now, budget=budget)
-    core.request(*(op.name for op in model.operations))
-    recorder = RunRecorder(core, lambda: now, recording)
-    recorder.requested(core.requested)
-    emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure)
+    clock = VirtualClock()
+    core = stack.control_core(clock, budget=budget)
+    loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock)
+    loop.request([op.name for op in model.operations])
+    emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure,
+                              delays=delays)
     deliberate = {t.name for t in compiled.deliberate}
     total = len(model.operations)
     start_wall = time.perf_counter()
     planning = 0.0
     reason = ""
+    outcome = RunOutcome.FINISHED
     quiet_ticks = 0
     while True:
+        now = clock.now
         progress_before, state_before = core.progress, core.state
-        result = core.tick()
-        recorder.ticked()
-        recorder.send_changed()
+        result = loop.tick().result
         for name in result.started:
             say(f"{now:7.1f}s  start  {name}")
         for name in result.fired:
@@ -89,50 +108,47 @@ def run_in_process(
             quiet_ticks += 1
             continue
         quiet_ticks = 0
-        request = core.plan_request()
+        request = loop.plan_request()
         if request is not None:
-            recorder.plan_request(request)
             began = time.perf_counter()
-            answer = core.solve(request)
+            adopted = loop.solve(request)
             planning += time.perf_counter() - began
-            said = len(core.events.log)
-            recorder.plan(request, answer, taken=core.adopt(request, answer))
-            for event in core.events.log[said:]:
+            for event in adopted.events:
                 if isinstance(event, NoPlanFound | PlanFound):  # once per goal and reason, not per retry
                     say(f"{now:7.1f}s  {event.text}")
             continue
         changes = emulator.step(compiled.unpack(core.state), now)
         if changes:
-            recorder.ingested(core.ingest(changes))
+            loop.ingest(changes)
             continue
         due = emulator.next_due()
         retry = core.next_retry()
         if retry is not None and retry > now:
             due = retry if due is None else min(due, retry)  # a goal without a plan is tried again then
         if due is None:
-            waiting = [n for n in core.executing()]
-            reason = f"stuck: nothing can happen; executing: {', '.join(waiting) or 'none'}"
-            for event in core.events.log[-5:]:
+            outcome = RunOutcome.STUCK
+            reason = f"stuck: nothing can happen; executing: {', '.join(core.executing()) or 'none'}"
+            for event in core.events.log.recent(STUCK_EVENTS_SHOWN):
                 say(f"  {event.text}")
             break
         if due - now > 0 and realtime:
             time.sleep(due - now)
-        now = max(now, due)
-        if now > time_limit:
+        clock.now = max(now, due)
+        if clock.now > time_limit:
+            outcome = RunOutcome.TIME_LIMIT
             reason = f"time limit of {time_limit} emulated seconds reached"
             break
+    loop.finish(outcome, reason)
     events = core.events
-    recorder.finish("finished" if core.all_finished() else "stuck" if reason.startswith("stuck") else "stopped",
-                    reason)
     return RunSummary(
-        finished=core.all_finished(),
+        outcome=outcome,
         operations_finished=sum(1 for op in model.operations if core.op_state(op.name) is OperationState.FINISHED),
         operations_total=total,
         abilities=events.abilities_started,
         plans=events.plans,
         replans=events.replans,
         no_plans=events.no_plans,
-        emulated_seconds=now,
+        emulated_seconds=clock.now,
         wall_seconds=time.perf_counter() - start_wall,
         planning_seconds=planning,
         reason=reason,

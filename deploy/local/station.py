@@ -24,7 +24,7 @@ from common.config.modes import DeviceMode
 from common.config.security import operator_identity
 from common.model import Model, OperationState
 from common.plumbing.lifecycle import free_port
-from common.wire.ctl import PlanDetails, StatusMessage
+from common.wire.ctl import Event, PlanDetails, StatusMessage
 from common.wire.messages import MessageError
 from controller.console.statusview import StatusFollower, fetch_plan
 from deploy.runs.cli import timeline_after_run
@@ -120,10 +120,27 @@ class Progress:
         self.activity = ""
         self.last_activity_at = 0.0
         self.reported: set[str] = set()
+        self.faults = 0  # faults in the controller's event log over the whole run, not only a status's window
+        self.last_fault: Event | None = None
+        self._controller = ""
+        self._events_seen = 0  # the controller's events_total when its events were last read
+
+    def _read_events(self, status: StatusMessage) -> None:
+        """The events new since the last status: the newest `events_total` minus those seen, of the ones it
+        carries (a status carries the last EVENT_WINDOW only, so more than that between two are missed)."""
+        if status.controller != self._controller:  # a restarted controller counts from zero
+            self._controller, self._events_seen = status.controller, 0
+        new = max(0, status.events_total - self._events_seen)
+        for event in status.events[len(status.events) - min(new, len(status.events)):]:
+            if event.fault:
+                self.faults += 1
+                self.last_fault = event
+        self._events_seen = status.events_total
 
     def update(self, status: StatusMessage, plan: PlanDetails | None = None) -> None:
         """Print what changed; `plan`: the details of the plan under way (its steps), if known."""
         say = self.say
+        self._read_events(status)
         done = sum(1 for op in status.operations if op.state is OperationState.FINISHED)
         for op in status.operations:
             old = self.op_states.get(op.name)
@@ -264,9 +281,8 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
         say(f"{'finished' if result == 0 else 'NOT finished'}: {done}/{len(last.operations)} operations, "
             f"{last.abilities} abilities started, {last.plans} plans, {last.replans} replans, "
             f"{last.no_plans} goals without a plan, in {elapsed:.1f} s")
-        faults = [e for e in last.events if e.fault]
-        if faults:
-            say(f"faults seen: {len(faults)}; last: {faults[-1].text}")
+        if progress.last_fault is not None:
+            say(f"faults seen: {progress.faults}; last: {progress.last_fault.text}")
         if result != 0:
             for h in last.health:
                 if not h.healthy:

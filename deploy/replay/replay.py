@@ -1,4 +1,5 @@
-"""Replay a recorded run (common/recording) on a fresh controller core in virtual time and compare decisions.
+"""Replay a recorded run (common/recording) on a fresh control loop (controller/loop.py, the one the live
+controller and the in-process runner drive) in virtual time and compare decisions.
 
 The inputs, in the recorded order and at the recorded times (the core's clock is set to each record's
 `t`): the values loaded, the resources held, the measured values the controller took, the watchdog's verdicts
@@ -29,11 +30,13 @@ from typing import Any
 import msgspec
 
 from common.model import Model
+from common.model.compiled import CompiledModel
 from common.stations import load_model
 from controller.control import ControlCore, PlanRequest
+from controller.loop import ControlLoop
 from controller.planner import Budget, NoPlan, Plan, PlanStats
 from controller.planner.validate import plan_from_moves
-from controller.recording.hooks import RunRecorder
+from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.reader import Record, Run
 from controller.recording.schema import (
     CommandRecord,
@@ -52,7 +55,6 @@ from controller.recording.schema import (
     WatchdogVerdict,
     station_model_hash,
 )
-from controller.requests import Requests
 from controller.stack import build_controller_stack
 
 DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
@@ -109,14 +111,6 @@ class ListSink:
         pass
 
 
-class VirtualClock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def is_decision(record: Record) -> bool:
     return record.kind in DECISIONS and (record.kind is not RecordKind.EVENT or record.key in CORE_EVENTS)
 
@@ -150,11 +144,15 @@ class Replayer:
         self.compiled = stack.compiled
         self.clock = VirtualClock()
         self.core: ControlCore = stack.control_core(self.clock, budget=budget)
-        self.core.request(*meta.requested)
         self.sink = ListSink()
-        self.recorder = RunRecorder(self.core, self.clock, self.sink)
-        self.requests = Requests(self.core, answered=self.recorder.request)
+        # The live controller commands the resources of its hubs.toml: those the recording saw commanded are
+        # a subset of the model's, and a resource nobody commands has no command to compare.
+        self.loop = ControlLoop(self.core, RunRecorder(self.core, self.clock, self.sink),
+                                (r.name for r in self.model.resources), self.clock)
+        self.loop.request(meta.requested)
+        self.requests = self.loop.requests()
         self.unhealthy: dict[str, str] = {}
+        self.held: frozenset[str] = frozenset()  # resources held until their mirror comes (controller/command_hold.py)
         self.asked: dict[int, PlanRequest] = {}
         self._apply: dict[RecordKind, Callable[[Record], None]] = {
             RecordKind.STATE: self._state, RecordKind.WATCHDOG: self._watchdog, RecordKind.TICK: self._tick,
@@ -204,8 +202,7 @@ class Replayer:
     # --- the inputs -----------------------------------------------------------------------
     def _state(self, record: Record) -> None:
         data: StateRecord = record.data  # type: ignore[assignment]
-        if data.values:
-            self.core.ingest(data.values)
+        self.loop.ingest(data.values)
 
     def _watchdog(self, record: Record) -> None:
         data: WatchdogRecord = record.data  # type: ignore[assignment]
@@ -215,19 +212,16 @@ class Replayer:
             self.unhealthy.pop(record.key, None)
 
     def _tick(self, _record: Record) -> None:
-        core = self.core
-        core.set_disabled(frozenset(self.unhealthy) | self.recorder.held)
-        core.tick()
-        self.recorder.ticked(self.unhealthy)
-        self.recorder.send_changed()
+        self.loop.tick(self.unhealthy, self.held)
 
     def _command(self, record: Record) -> None:
         # The controller also sends at its command rate, between ticks: a value that changed since the last
         # tick (a mirror taken, a force) goes out then. Here is such a moment: what would it send?
-        self.recorder.send_changed([record.key])
+        self.loop.resend(self.held, [record.key])
 
     def _hold(self, record: Record) -> None:
         data: HoldRecord = record.data  # type: ignore[assignment]
+        self.held = frozenset(data.resources)
         self.core.set_unknown(data.paths)
 
     def _restore(self, record: Record) -> None:
@@ -239,9 +233,8 @@ class Replayer:
         self.requests.apply(data.request)
 
     def _plan_request(self, _record: Record) -> None:
-        request = self.core.plan_request()
+        request = self.loop.plan_request()
         if request is not None:
-            self.recorder.plan_request(request)
             self.asked[request.generation] = request
 
     def _plan(self, record: Record) -> None:
@@ -249,23 +242,25 @@ class Replayer:
         request = self.asked.get(data.generation)
         if request is None:
             return  # not asked for in the replay: the plan requests already differ
-        improvement = data.answer == PlanAnswer.IMPROVEMENT
-        replan = self.replans and not improvement
-        answer = self.core.solve(request) if replan else self._recorded_answer(request, data)
-        if improvement:
+        if data.answer == PlanAnswer.IMPROVEMENT:
+            answer = recorded_answer(self.compiled, request, data)
             assert isinstance(answer, Plan)
-            self.recorder.plan(request, answer, taken=self.core.improve(request, answer), improvement=True)
+            self.loop.improve(request, answer)
+        elif self.replans:
+            self.loop.solve(request)
         else:
-            self.recorder.plan(request, answer, taken=self.core.adopt(request, answer))
+            self.loop.adopt(request, recorded_answer(self.compiled, request, data))
 
-    def _recorded_answer(self, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
-        stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
-        if data.found:
-            moves = [(self.compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
-            return plan_from_moves(self.compiled, request.start, moves, tuple(data.goals), stats)
-        if not request.goals:
-            return None
-        return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
+
+def recorded_answer(compiled: CompiledModel, request: PlanRequest, data: PlanRecord) -> Plan | NoPlan | None:
+    """A recorded plan answer rebuilt for `request`: its steps replayed on the request's start state."""
+    stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
+    if data.found:
+        moves = [(compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
+        return plan_from_moves(compiled, request.start, moves, tuple(data.goals), stats)
+    if not request.goals:
+        return None
+    return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
 
 
 def _show(data: Any) -> str:

@@ -39,7 +39,8 @@ sys.path.insert(0, str(HERE.parents[1]))
 from common.bus.memory_bus import MemoryBus, MemoryHub  # noqa: E402
 from common.bus.protocol import Sample  # noqa: E402
 from common.config.hubs_toml import load_station  # noqa: E402
-from common.wire.messages import Codec, HubStatus  # noqa: E402
+from common.wire.messages import HubStatus  # noqa: E402
+from controller.outcome import RunOutcome  # noqa: E402
 from controller.recording.schema import RunMeta  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
@@ -47,7 +48,6 @@ from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_sta
 
 BATCH = 50
 BLOCK = 100  # batches between attaching and detaching the recording (interleaved)
-Routes = dict[str, tuple[str, Codec, tuple[tuple[str, str], ...]]]
 HOOKS = ("ingested", "liveliness", "ticked", "request", "command", "plan_request", "plan", "loaded", "unknown_set")
 
 
@@ -69,19 +69,19 @@ class HookClock:
 
 
 async def _service(directory: Path, resources: int, states: int, *, record: bool, changing: bool
-                   ) -> tuple[ControllerService, Routes, list[list[Sample]], MemoryBus]:
+                   ) -> tuple[ControllerService, list[list[Sample]], MemoryBus]:
     """The capacity station's controller service, ready to ingest, and the batches of states it will take."""
     config, model = load_station(write_station(directory, f"rec_{os.getpid()}", resources))
     bus = await MemoryBus(MemoryHub()).open()  # commands are published into it, heard by no one
     service = ControllerService(config, model, bus, db=str(directory / "ctl.sqlite"),
                                 planner_process=False, record=RunMeta(mode="service") if record else None)
-    routes = service._state_routes()
+    routes = service.ingest.routes
     keys = list(routes)
     payloads = []
     for run_m in (False, True):  # per resource: its state with run_m false and true, mirroring our commands
         row = []
         for key in keys:
-            codec = routes[key][1]
+            codec = routes[key].codec
             mirror = codec.command({"run_c": False}, seq=0, controller=service.controller_id)
             row.append(codec.encode_state(codec.state({"run_m": run_m, "tqr_m": False, "fail_m": False},
                                                       status=HubStatus.OK, seq=1, hub="gen", mirror=mirror)))
@@ -97,11 +97,11 @@ async def _service(directory: Path, resources: int, states: int, *, record: bool
     # From a collected heap: the set-up's garbage is not collected, and counted, inside the measurement
     # (in one process for all measurements, the service of the one before made the next ~6 % slower).
     gc.collect()
-    return service, routes, batches, bus
+    return service, batches, bus
 
 
 async def _close(service: ControllerService, bus: MemoryBus) -> None:
-    for task in list(service._solving):
+    for task in service.planning.tasks():
         task.cancel()
     service.store.close()
     await bus.close()
@@ -112,14 +112,14 @@ async def cpu_per_state(directory: Path, resources: int, states: int, *, record:
     """CPU seconds per state ingested (and ticked on) of the controller's process, recording or not, and
     those of the recording's own code: the controller thread's in the recorder's hooks, the writer process's
     (without its start); and the seconds the writer process took to start (Python, imports)."""
-    service, routes, batches, bus = await _service(directory, resources, states, record=record, changing=changing)
+    service, batches, bus = await _service(directory, resources, states, record=record, changing=changing)
     hooks = HookClock(service.recorder)
     began = time.process_time()
     for batch in batches:
-        service._ingest_batch(batch, routes)
+        service.ingest.batch(batch)
         service._tick()
     writer = service.recorder.sink
-    service.recorder.finish("stopped")  # waits for the writer process: it reports its CPU time
+    service.recorder.finish(RunOutcome.STOPPED)  # waits for the writer process: it reports its CPU time
     spent = time.process_time() - began
     writer_s = getattr(writer, "process_cpu_s", 0.0)
     start_s = getattr(writer, "process_start_cpu_s", 0.0)
@@ -135,7 +135,7 @@ async def interleaved(directory: Path, resources: int, states: int, *, changing:
     `--no-record`. The writer process works on while the recording is detached, so what it does to the
     controller's caches is shared by both: a cross-check of the figure above, not a replacement. (It would
     not do for a writer thread in the controller's process: its CPU in a detached block would count as off.)"""
-    service, routes, batches, bus = await _service(directory, resources, states, record=True, changing=changing)
+    service, batches, bus = await _service(directory, resources, states, record=True, changing=changing)
     recorder, sink = service.recorder, service.recorder.sink
     spent = {False: 0.0, True: 0.0}
     for block, start in enumerate(range(0, len(batches) - len(batches) % (2 * BLOCK), BLOCK)):
@@ -143,12 +143,12 @@ async def interleaved(directory: Path, resources: int, states: int, *, changing:
         recorder.sink = sink if record else None
         began = time.process_time()
         for batch in batches[start:start + BLOCK]:
-            service._ingest_batch(batch, routes)
+            service.ingest.batch(batch)
             service._tick()
         if block >= 2:  # the first two warm up
             spent[record] += time.process_time() - began
     recorder.sink = sink
-    recorder.finish("stopped")
+    recorder.finish(RunOutcome.STOPPED)
     await _close(service, bus)
     return 1 - spent[False] / spent[True]
 

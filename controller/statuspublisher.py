@@ -1,0 +1,82 @@
+"""What the live controller shows of itself: `{station}/ctl/status` (through the status diet,
+controller/statusfeed.py) every STATUS_PERIOD_S, and the global state on `{station}/ctl/state` every
+STATE_SNAPSHOT_PERIOD_S."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Mapping
+
+from common.bus.protocol import Bus
+from common.wire.ctl import EVENT_WINDOW, OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.wire.keys import Keys
+from common.wire.messages import encode
+
+from .control import ControlCore
+from .engine import TickResult
+from .loopmeter import LoopMeter
+from .statusfeed import PlanBook, StatusDiet
+from .watchdog import Watchdog
+
+STATUS_PERIOD_S = 0.25
+STATE_SNAPSHOT_PERIOD_S = 1.0
+
+
+class StatusPublisher:
+    def __init__(self, station: str, controller_id: str, core: ControlCore, watchdog: Watchdog,
+                 resources: Mapping[str, str], meter: LoopMeter) -> None:
+        """`resources`: each supervised resource's hub, in the order the status lists them."""
+        self.station = station
+        self.controller_id = controller_id
+        self.core = core
+        self.watchdog = watchdog
+        self.resources = resources
+        self.meter = meter
+        self.started = time.monotonic()
+        self.op_since: dict[str, float] = {}  # when each operation last started or finished
+        self.plan_book = PlanBook(core.compiled, core)
+        self.diet = StatusDiet()
+
+    def ticked(self, result: TickResult) -> None:
+        now = time.monotonic()
+        for name in (*result.started, *result.finished):
+            self.op_since[name] = now
+
+    async def run(self, bus: Bus, keys: Keys, stop: asyncio.Event) -> None:
+        last_snapshot = 0.0
+        self.diet.serve(bus, keys, self.plan_book)
+        core = self.core
+        while not stop.is_set():
+            now = time.monotonic()
+            status = self.diet.next(self.status(), core.events.log, now)
+            bus.publish(keys.ctl("status"), encode(status))
+            if now - last_snapshot >= STATE_SNAPSHOT_PERIOD_S:
+                snapshot = StateSnapshot(time=time.time(), values=core.compiled.unpack(core.state),
+                                         forced=core.forced_paths())
+                bus.publish(keys.ctl("state"), encode(snapshot))
+                last_snapshot = now
+            await asyncio.sleep(STATUS_PERIOD_S)
+
+    def status(self) -> StatusMessage:
+        """The whole picture (the status diet publishes what changed of it)."""
+        core = self.core
+        now = time.monotonic()
+        operations = [
+            OperationInfo(op.name, core.op_state(op.name), core.error_text(op.name),
+                          self.op_since.get(op.name, self.started) - self.started)
+            for op in core.model.operations
+        ]
+        health = []
+        for resource in self.resources:
+            h = self.watchdog.health(resource)
+            health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag, h.note))
+        events = core.events
+        return StatusMessage(
+            station=self.station, controller=self.controller_id, time=time.time(),
+            uptime=now - self.started, operations=operations, health=health, plan=self.plan_book.info(),
+            plans=events.plans, replans=events.replans, no_plans=events.no_plans,
+            abilities=events.abilities_started, paused=core.paused, finished=core.all_finished(),
+            events=events.log.recent(EVENT_WINDOW), events_total=events.log.total,
+            loop=self.meter.take(),
+        )
