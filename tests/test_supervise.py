@@ -143,6 +143,14 @@ def test_a_restarted_controller_announcing_what_it_restored_finished_is_no_secon
     assert done.text() == "from 0 recordings: each of 1 finished operations finished once"
 
 
+def test_a_finish_whose_record_died_with_the_killed_controller_is_known_from_the_restored_state() -> None:
+    done = DoneOnce([])
+    count_finishes([_op("A", "initial", "executing")], done)  # its finish was not handed over before the kill
+    count_finishes([_restore(A="finished"), _op("A", "initial", "finished")], done)
+    assert done.finishes == {"A": 1} and done.restored_only == {"A"} and not done.redone()
+    assert "finished once (1 known from a restarted controller's restored state: A)" in done.text()
+
+
 def test_a_controller_that_lost_its_state_and_finishes_again_redid_the_operation() -> None:
     done = DoneOnce([])
     count_finishes([_op("A", "initial", "executing"), _op("A", "executing", "finished")], done)

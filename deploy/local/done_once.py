@@ -38,6 +38,9 @@ class DoneOnce:
     recordings: list[Path]
     finishes: dict[str, int] = field(default_factory=dict)  # operation -> finishes recorded
     resets: dict[str, int] = field(default_factory=dict)  # operation -> finished -> initial recorded
+    # Finishes known only from a restarted controller's restored state: the killed controller's last records, not yet
+    # handed to its recording's writer, died with it.
+    restored_only: set[str] = field(default_factory=set)
 
     def redone(self) -> dict[str, int]:
         """Operations finished more often than reset plus once, with their finishes."""
@@ -46,12 +49,14 @@ class DoneOnce:
     def text(self) -> str:
         files = f"{len(self.recordings)} recording{'s' if len(self.recordings) != 1 else ''}"
         redone = self.redone()
+        if redone:
+            listed = ", ".join(f"{op} {n} times" for op, n in sorted(redone.items()))
+            return f"REDONE, from {files}: {listed}"
         if not self.finishes:
             return f"from {files}: no operation finished"
-        if not redone:
-            return f"from {files}: each of {len(self.finishes)} finished operations finished once"
-        listed = ", ".join(f"{op} {n} times" for op, n in sorted(redone.items()))
-        return f"REDONE, from {files}: {listed}"
+        restored = (f" ({len(self.restored_only)} known from a restarted controller's restored state: "
+                    f"{', '.join(sorted(self.restored_only))})") if self.restored_only else ""
+        return f"from {files}: each of {len(self.finishes)} finished operations finished once{restored}"
 
 
 def check_done_once(recordings: list[Path]) -> DoneOnce:
@@ -72,7 +77,11 @@ def count_finishes(records: Iterable[Record], into: DoneOnce) -> None:
         if isinstance(data, RestoreRecord):
             for key, value in data.values.items():
                 if key.startswith(OPERATION_PREFIX):
-                    state[key.removeprefix(OPERATION_PREFIX)] = str(value)
+                    op = key.removeprefix(OPERATION_PREFIX)
+                    state[op] = str(value)
+                    if state[op] == FINISHED and into.finishes.get(op, 0) == into.resets.get(op, 0):
+                        into.finishes[op] = into.finishes.get(op, 0) + 1
+                        into.restored_only.add(op)
         elif isinstance(data, OperationRecord):
             op = record.key
             if data.after == FINISHED and state.get(op) != FINISHED:
