@@ -115,6 +115,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     failure = parse_failures(args.failure)
     if args.fail_rate:
         failure.setdefault("nr", args.fail_rate)
+    if args.chaos < 0:
+        return _fail(f"--chaos {args.chaos}: the number of kills cannot be negative")
+    if args.chaos and args.in_process:
+        return _fail("--chaos kills processes: it needs the station as processes, not --in-process")
     if not args.in_process:
         from .local.station import Options, up
 
@@ -133,7 +137,8 @@ def cmd_up(args: argparse.Namespace) -> int:
                 return _fail(f"--model {args.model}: `up` runs the model {config} names ({named}); give the model "
                              f"in that file's [station] model, or use --in-process")
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
-                          time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record))
+                          time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record,
+                          chaos=args.chaos))
     from controller.control import VIRTUAL_BUDGET
 
     from .local.inprocess import emulated_delays, run_in_process
@@ -196,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "with --in-process it wins over --config)")
     up.add_argument("--config", help=f"the station's hubs.toml (default: ./{DEFAULT_CONFIG})")
     up.add_argument("--speed", type=positive, default=1.0, help="scale every emulated delay (2 = twice as fast)")
-    up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes")
+    up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes (and of --chaos)")
     up.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
                     help="run every device in this mode (default: as in hubs.toml)")
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
@@ -209,6 +214,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="start no operation: the operator starts them from `hubctl console`")
     up.add_argument("--no-record", action="store_true",
                     help="do not record the run (default: into [controller.recording] dir, see `hubctl replay`)")
+    up.add_argument("--chaos", type=int, default=0, metavar="N",
+                    help="kill -9 N random hubs or the controller at random moments of the run (from --seed); "
+                         "each is restarted as its systemd unit would be")
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")

@@ -1,8 +1,10 @@
 """`hubctl up`: the whole station on this machine, as separate processes over Zenoh on loopback.
 
 The controller and every hub of hubs.toml run as their own processes (what systemd
-runs on the real station), with emulated devices by default. This process watches the
-controller's status and prints progress, then a summary; Ctrl-C stops everything.
+runs on the real station), with emulated devices by default, restarted as their units
+restart them (supervisor.py). This process watches the controller's status and prints
+progress, then a summary; Ctrl-C stops everything. `chaos` kills some of them on the way
+(chaos.py).
 """
 
 from __future__ import annotations
@@ -27,13 +29,16 @@ from common.plumbing.lifecycle import free_port
 from common.wire.ctl import Event, PlanDetails, StatusMessage
 from common.wire.messages import MessageError
 from controller.console.statusview import StatusFollower, fetch_plan
+from deploy.remote.restart_policy import UP_RESTART, RestartPolicy
 from deploy.runs.cli import timeline_after_run
 
+from .chaos import Chaos, ChaosPlan, plan_chaos
+from .done_once import check_done_once, run_recordings
 from .localcerts import local_certs, watcher_zenoh_config
 from .recordings import recording_since
+from .supervisor import Child, Supervisor
 
 RUN_DIR = Path("var/up")
-STOP_GRACE_S = 5.0
 OPERATION_LABELS = {OperationState.EXECUTING: "start", OperationState.FINISHED: "done ", OperationState.ERROR: "ERROR",
                     OperationState.INITIAL: "reset"}
 
@@ -66,14 +71,6 @@ def single_instance(run_dir: Path):  # type: ignore[no-untyped-def]
 
 
 @dataclass
-class Child:
-    name: str
-    argv: list[str]
-    log: Path
-    process: asyncio.subprocess.Process | None = None
-
-
-@dataclass
 class Options:
     config: str = "hubs.toml"
     speed: float = 1.0
@@ -83,8 +80,11 @@ class Options:
     time_limit: float = 900.0
     resume: bool = False
     hold: bool = False  # the controller starts no operation: the operator starts them from `hubctl console`
-    record: bool = True  # the controller records the run (common/recording)
+    record: bool = True  # the controller records the run (controller/recording)
     run_dir: Path = RUN_DIR
+    chaos: int = 0  # kill -9 this many processes at moments drawn from `seed` (chaos.py)
+    chaos_plan: ChaosPlan | None = None  # these kills instead of drawing `chaos` of them
+    restart: RestartPolicy = UP_RESTART  # how a process that exits is restarted (the units' policy)
 
 
 def child_commands(config: StationConfig, options: Options, port: int, certs: Path | None = None) -> list[Child]:
@@ -92,12 +92,12 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
     secured = ["--certs", str(certs)] if certs is not None else []
     controller = [sys.executable, "-m", "controller", "--config", options.config, "--loopback-port", str(port),
                   "--db", str(run_dir / "controller.sqlite")]
-    if not options.resume:
-        controller.append("--fresh")
     if options.hold:
         controller.append("--hold")
     controller += ["--run-mode", "up", "--run-seed", str(options.seed)] if options.record else ["--no-record"]
-    children = [Child("controller", controller + secured, run_dir / "controller.log")]
+    # A restarted controller resumes from its SQLite file: only its first start may forget it.
+    children = [Child("controller", controller + secured, run_dir / "controller.log",
+                      first_start_args=[] if options.resume else ["--fresh"])]
     for hub in config.hubs.values():
         argv = [sys.executable, "-m", "hubs", hub.name, "--config", options.config, "--loopback-port", str(port),
                 "--speed", str(options.speed), "--seed", str(options.seed), *secured]
@@ -171,28 +171,12 @@ class Progress:
         self.reported = set(unhealthy)
 
 
-async def _start(child: Child) -> None:
-    child.log.parent.mkdir(parents=True, exist_ok=True)
-    handle = child.log.open("wb")
-    child.process = await asyncio.create_subprocess_exec(
-        *child.argv, stdout=handle, stderr=asyncio.subprocess.STDOUT, start_new_session=True)
-    handle.close()
-
-
-async def _stop(children: list[Child]) -> None:
-    running = [c for c in children if c.process is not None and c.process.returncode is None]
-    for child in running:
-        with contextlib.suppress(ProcessLookupError):
-            child.process.send_signal(signal.SIGTERM)  # type: ignore[union-attr]
-    deadline = time.monotonic() + STOP_GRACE_S
-    for child in running:
-        try:
-            async with asyncio.timeout(max(0.1, deadline - time.monotonic())):
-                await child.process.wait()  # type: ignore[union-attr]
-        except TimeoutError:
-            with contextlib.suppress(ProcessLookupError):
-                child.process.kill()  # type: ignore[union-attr]
-            await child.process.wait()  # type: ignore[union-attr]
+def chaos_plan(options: Options, children: list[Child], model: Model) -> ChaosPlan | None:
+    if options.chaos_plan is not None:
+        return options.chaos_plan
+    if not options.chaos:
+        return None
+    return plan_chaos(options.chaos, options.seed, [c.name for c in children], len(model.operations))
 
 
 async def run_station(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
@@ -227,8 +211,13 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
             return 1
         for child in children:
             child.argv += world.hub_args(child.name)
-    for child in children:
-        await _start(child)
+    supervisor = Supervisor(children, options.restart, say)
+    plan_of_chaos = chaos_plan(options, children, model)
+    chaos = None
+    if plan_of_chaos is not None:
+        say(f"  chaos (seed {plan_of_chaos.seed}): kill -9 {plan_of_chaos.describe() or 'nothing'}")
+        chaos = Chaos(plan_of_chaos, supervisor.kill, say, time.monotonic)
+    await supervisor.start()
     progress = Progress(say, len(model.operations))
     result = 1
     last: StatusMessage | None = None
@@ -242,12 +231,13 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                     say("interrupted: stopping the station")
                     result = 130
                     break
-                dead = [c for c in children if c.process is not None and c.process.returncode is not None]
-                if dead:
-                    for c in dead:
-                        say(f"{c.name} exited with code {c.process.returncode}; its log: {c.log}")  # type: ignore[union-attr]
+                if supervisor.gave_up is not None:
+                    say(supervisor.gave_up.message())
                     result = 1
                     break
+                if chaos is not None:
+                    chaos.observe(None if last is None else
+                                  sum(1 for op in last.operations if op.state is OperationState.FINISHED))
                 if time.monotonic() - began > options.time_limit:
                     say(f"time limit of {options.time_limit:.0f} s reached")
                     break
@@ -271,7 +261,7 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                     result = 0
                     break
     finally:
-        await _stop(children)
+        await supervisor.stop()
         if world is not None:
             await world.stop()
     elapsed = time.monotonic() - began
@@ -289,6 +279,14 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
                     say(f"  {h.resource} ({h.hub}): {h.reason}")
     else:
         say(f"no status from the controller in {elapsed:.1f} s; see {options.run_dir}/controller.log")
+    say(f"restarts: {supervisor.restart_counts()}")
+    if chaos is not None:
+        say(chaos.summary())
+    if options.record and (chaos is not None or any(supervisor.restarts.values())):
+        done_once = check_done_once(run_recordings(options.config, config.station.name, began_wall - 1.0))
+        say(done_once.text())
+        if done_once.redone():
+            result = 1
     recording = recording_since(options.config, began_wall - 1.0) if options.record else None
     if recording is not None:
         say(f"recording: {recording} (hubctl replay {recording})")

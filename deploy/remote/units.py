@@ -17,7 +17,8 @@ Choices, each for a reason:
   that takes; a unit that gave up would need a person at the ECU. The backoff keeps a
   crash loop cheap: from systemd 254 on, `RestartSteps`/`RestartMaxDelaySec` grow the
   delay from 1 s to 60 s; older systemd (Debian/Raspberry Pi OS bookworm ship 252) has
-  no growing delay, so a fixed 5 s.
+  no growing delay, so a fixed 5 s. The policy itself is deploy/remote/restart_policy.py, which
+  `hubctl up` follows too.
 * `User=statehub`: its own unprivileged user. A hub reaches its devices through Unix
   groups only: `i2c` for an MCP23017 on /dev/i2c-* (nutrunner), `dialout` for a serial
   RFID reader, each only when such a device runs in `real` mode. CAN needs no group and
@@ -53,6 +54,7 @@ from common.config.hubs_toml import HubConfig, StationConfig
 from common.config.modes import DeviceMode, SecurityMode
 
 from .layout import CONTROLLER_UNIT, Layout, hub_unit_name
+from .restart_policy import unit_restart_policy
 
 # Device types whose real driver opens a device node, and the group owning such nodes
 # on Raspberry Pi OS and Debian.
@@ -94,10 +96,6 @@ def hub_groups(hub: HubConfig) -> list[str]:
                    if d.mode == DeviceMode.REAL and d.type in DEVICE_GROUPS})
 
 
-def _restart(systemd_version: int) -> list[str]:
-    if systemd_version >= BACKOFF_SYSTEMD:
-        return ["Restart=always", "RestartSec=1s", "RestartSteps=6", "RestartMaxDelaySec=60s"]
-    return ["Restart=always", "RestartSec=5s"]
 
 
 _HARDENING = [
@@ -132,13 +130,13 @@ def _render(description: str, service: Iterable[str], limits: Limits, systemd_ve
         f"Description={description}",
         "After=network-online.target",
         "Wants=network-online.target",
-        "StartLimitIntervalSec=0",
+        *unit_restart_policy(systemd_version, BACKOFF_SYSTEMD).unit_lines(),
         "",
         "[Service]",
         "Type=notify",
         *service,
         *limits.lines(),
-        *_restart(systemd_version),
+        *unit_restart_policy(systemd_version, BACKOFF_SYSTEMD).service_lines(),
         "TimeoutStopSec=10s",
         "StandardOutput=journal",
         "StandardError=journal",
