@@ -26,8 +26,8 @@ from controller.recording.schema import HubState
 from .control import ControlCore, PlanRequest
 from .engine import TickResult
 from .outbox import Command, CommandVariable, Outbox
-from .outcome import RunOutcome
 from .planner import NoPlan, Plan
+from .recording.schema import RunOutcome
 from .requests import Requests
 
 NOT_HELD: frozenset[str] = frozenset()

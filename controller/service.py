@@ -40,9 +40,9 @@ from .commandpublisher import CommandPublisher
 from .ingest import StateIngest
 from .loop import ControlLoop
 from .loopmeter import LoopMeter
-from .outcome import RunOutcome
 from .planclient import PlanClient
 from .planworker import READY_WAIT_S, PlannerProcess
+from .recording.schema import RunOutcome
 from .stack import build_controller_stack
 from .state import StateStore
 from .statuspublisher import StatusPublisher

@@ -26,7 +26,6 @@ from common.model import Kind, Model, OperationState, Value
 from common.model.compiled import State
 from common.wire.ctl import ConsoleReply, ConsoleRequest, PlannedAlone
 from controller.control import ControlCore, PlanRequest
-from controller.outcome import RunOutcome
 from controller.planner import NoPlan, Plan
 from controller.recording.schema import (
     CommandRecord,
@@ -40,6 +39,7 @@ from controller.recording.schema import (
     RequestRecord,
     RestoreRecord,
     RunMeta,
+    RunOutcome,
     StepRecord,
     TickRecord,
     WatchdogRecord,

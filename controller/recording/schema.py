@@ -101,7 +101,14 @@ class RunOutcome(enum.StrEnum):
     FINISHED = "finished"  # every operation done
     STOPPED = "stopped"  # stopped from outside (Ctrl-C, SIGTERM, a time limit)
     STUCK = "stuck"  # no progress possible
+    TIME_LIMIT = "time-limit"  # in virtual time: the run's time limit came first
     RUNNING = "running"  # not ended: still running, or its controller was killed before writing its end
+
+    @property
+    def recorded(self) -> RunOutcome:
+        """As a recording's meta says it (`hubctl runs`): a run ended by its time limit was stopped, its note
+        says why."""
+        return RunOutcome.STOPPED if self is RunOutcome.TIME_LIMIT else self
 
 
 class WatchdogVerdict(enum.StrEnum):

@@ -18,9 +18,9 @@ from common.model import Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
 from controller.loop import ControlLoop
-from controller.outcome import RunOutcome
 from controller.planner import Budget
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
+from controller.recording.schema import RunOutcome
 from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
 

@@ -40,8 +40,7 @@ from common.bus.memory_bus import MemoryBus, MemoryHub  # noqa: E402
 from common.bus.protocol import Sample  # noqa: E402
 from common.config.hubs_toml import load_station  # noqa: E402
 from common.wire.messages import HubStatus  # noqa: E402
-from controller.outcome import RunOutcome  # noqa: E402
-from controller.recording.schema import RunMeta  # noqa: E402
+from controller.recording.schema import RunMeta, RunOutcome  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
 from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
