@@ -35,7 +35,7 @@ def parameter(text: str) -> tuple[str, ParameterValue]:
     """`PATH=VALUE` of `--param`, the value as the model spells it (true/false, an integer, a name)."""
     path, sep, value = text.partition("=")
     if not sep or not path.strip():
-        raise argparse.ArgumentTypeError(f"{text!r}: expected PATH=VALUE, e.g. engine.bolts_e=22")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected PATH=VALUE, e.g. engine.count_bolts_e=22")
     value = value.strip()
     typed: ParameterValue = value
     if value in ("true", "false"):

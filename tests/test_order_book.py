@@ -40,27 +40,27 @@ def _all_finished(book: OrderBook, values: dict[str, Value]) -> dict[str, Value]
 
 def test_orders_queue_start_in_order_and_only_when_the_station_is_free(book: OrderBook) -> None:
     first, second = book.add("full", count=2, origin="test")
-    light = book.add("light", product_id="E-7", parameters={"engine.bolts_e": 22})[0]
+    light = book.add("light", product_id="E-7", parameters={"engine.count_bolts_e": 22})[0]
     assert [o.id for o in book.orders()] == [1, 2, 3] and first.product_id == "engine_assembly-00001"
-    assert light.product_id == "E-7" and light.parameters == {"engine.bolts_e": 22}
+    assert light.product_id == "E-7" and light.parameters == {"engine.count_bolts_e": 22}
     started = book.next()
     assert started is not None and started.order.id == first.id and started.order.state is OrderState.RUNNING
     assert book.next() is None  # one product on the station at a time
     assert book.current() == started.order
     assert started.operations[-1] == "MirLeave" and len(started.operations) == 45
-    assert started.values["engine.bolts_e"] == 24 and started.values["op.AgvArrive"] == "initial"
+    assert started.values["engine.count_bolts_e"] == 24 and started.values["op.AgvArrive"] == "initial"
     assert book.store.meta(REQUESTED_META) == list(started.operations)
     assert second.state is OrderState.QUEUED
 
 
 def test_a_variant_requests_its_operations_and_its_parameters_start_the_product(book: OrderBook) -> None:
-    book.add("light", parameters={"engine.bolts_e": 22})
+    book.add("light", parameters={"engine.count_bolts_e": 22})
     started = book.next()
     assert started is not None
     assert "TightenBolt21" not in started.operations and "MountOilPipes" not in started.operations
-    assert started.values["engine.bolts_e"] == 22 and started.values["engine.pipes_e"] == 0
+    assert started.values["engine.count_bolts_e"] == 22 and started.values["engine.count_pipes_e"] == 0
     stored, _ = book.store.load(book.model)
-    assert stored["engine.bolts_e"] == 22  # committed with the order's start
+    assert stored["engine.count_bolts_e"] == 22  # committed with the order's start
 
 
 def test_finish_archives_the_product_once_and_resets_it(book: OrderBook, model: Model) -> None:
@@ -84,8 +84,8 @@ def test_what_the_book_refuses_it_says_why(book: OrderBook) -> None:
         book.add("medium")
     with pytest.raises(OrderError, match=r"variant light has no parameter engine\.frame_e"):
         book.add("light", parameters={"engine.frame_e": "placed"})
-    with pytest.raises(OrderError, match=r"engine.bolts_e = 25 is outside"):
-        book.add("light", parameters={"engine.bolts_e": 25})
+    with pytest.raises(OrderError, match=r"engine.count_bolts_e = 25 is outside"):
+        book.add("light", parameters={"engine.count_bolts_e": 25})
     with pytest.raises(OrderError, match="count 0"):
         book.add("full", count=0)
     book.add("full", product_id="E-1")
@@ -116,7 +116,7 @@ def test_a_restarted_controller_finds_the_running_order_and_its_product(tmp_path
     book = OrderBook(store, model)
     assert book.current() == started.order and book.next() is None
     values, _ = store.load(model)
-    assert values["engine.bolt3_e"] == "tightened" and values["engine.pipes_e"] == 0  # nothing redone
+    assert values["engine.bolt3_e"] == "tightened" and values["engine.count_pipes_e"] == 0  # nothing redone
     assert store.meta(REQUESTED_META) == list(started.operations)
     store.close()
 
@@ -160,7 +160,7 @@ def test_every_transition_that_returned_survives_kill_9(tmp_path: Path, model: M
     assert [(o.id, o.variant, o.state) for o in finished] == [
         (1, "full", OrderState.DONE), (2, "light", OrderState.DONE), (3, "full", OrderState.DONE),
         (4, "light", OrderState.DONE)]
-    assert book.archive(4)["engine.bolts_e"] == 20 and book.archive(3)["engine.bolts_e"] == 24
+    assert book.archive(4)["engine.count_bolts_e"] == 20 and book.archive(3)["engine.count_bolts_e"] == 24
     values, _ = store.load(model)
-    assert values["engine.bolts_e"] == 24 and values["op.AgvLeave"] == "initial"  # reset with the finish
+    assert values["engine.count_bolts_e"] == 24 and values["op.AgvLeave"] == "initial"  # reset with the finish
     store.close()

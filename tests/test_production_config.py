@@ -36,12 +36,12 @@ def test_a_mix_in_hubs_toml_repeats_its_pattern(tmp_path: Path) -> None:
 
 def test_a_list_of_orders_in_hubs_toml(tmp_path: Path) -> None:
     text = ('[production]\n[[production.orders]]\nvariant = "light"\nproduct_id = "E-1"\n'
-            'parameters = { "engine.bolts_e" = 22 }\n[[production.orders]]\nvariant = "full"\ncount = 2\n')
+            'parameters = { "engine.count_bolts_e" = 22 }\n[[production.orders]]\nvariant = "full"\ncount = 2\n')
     config, model = load_station(_station(tmp_path, text))
     plan = plan_from_options(None, None, config.production, model, config.path)
     assert plan is not None
     assert [(o.variant, o.product_id) for o in plan.orders] == [("light", "E-1"), ("full", ""), ("full", "")]
-    assert plan.orders[0].parameters == {"engine.bolts_e": 22}
+    assert plan.orders[0].parameters == {"engine.count_bolts_e": 22}
 
 
 @pytest.mark.parametrize(("production", "line_starts", "message"), [
@@ -112,11 +112,11 @@ def test_hubctl_parses_up_orders_and_the_orders_command() -> None:
     parser = build_parser()
     args = parser.parse_args(["up", "--orders", "5", "--mix", "full:3,light:1"])
     assert (args.orders, args.mix) == (5, "full:3,light:1")
-    args = parser.parse_args(["orders", "add", "light", "--count", "2", "--param", "engine.bolts_e=22"])
+    args = parser.parse_args(["orders", "add", "light", "--count", "2", "--param", "engine.count_bolts_e=22"])
     request = request_of(args, "me@here")
     assert (request.action, request.variant, request.count, request.parameters) == (
-        OrdersAction.ADD, "light", 2, {"engine.bolts_e": 22})
+        OrdersAction.ADD, "light", 2, {"engine.count_bolts_e": 22})
     assert request_of(parser.parse_args(["orders", "cancel", "3"]), "me").order == 3
     assert request_of(parser.parse_args(["orders", "list", "--all"]), "me").include_finished
     with pytest.raises(SystemExit):
-        parser.parse_args(["orders", "add", "light", "--param", "engine.bolts_e"])
+        parser.parse_args(["orders", "add", "light", "--param", "engine.count_bolts_e"])

@@ -99,7 +99,8 @@ def test_the_reference_station_declares_full_and_light_and_full_is_every_operati
     left_out = set(OPERATION_ORDER) - set(light.requested(model.operations))
     assert left_out == {"TightenBolt21", "TightenBolt22", "TightenBolt23", "TightenBolt24", "MountFilter3",
                         "TightenFilter3", "MountOilPipes", "TightenPipe1", "TightenPipe2"}
-    assert dict(light.parameters) == {"engine.bolts_e": 20, "engine.filters_e": 2, "engine.pipes_e": 0}
+    assert dict(light.parameters) == {"engine.count_bolts_e": 20, "engine.count_filters_e": 2,
+                                      "engine.count_pipes_e": 0}
     assert "engine.bolt24_e" in model.product_variables and "op.AgvLeave" in model.product_variables
 
 

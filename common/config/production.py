@@ -6,7 +6,7 @@ Both become a `ProductionPlan`: the orders to queue when the station starts, in 
     [[production.orders]]
     variant = "full"
     product_id = "E-1001"        # optional: generated from the order's id
-    parameters = { "engine.bolts_e" = 22 }   # optional: the variant's parameters, overridden
+    parameters = { "engine.count_bolts_e" = 22 }   # optional: the variant's parameters, overridden
     count = 1                    # optional: this many such orders (no product_id then)
 
     [production]                 # ... or a repeating mix: full, full, full, light, full, ...

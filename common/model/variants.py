@@ -4,7 +4,7 @@ A station model declares its **product variables** (glob patterns over estimated
 e.g. ``engine.*``; the operations' own states always belong to the product) and its
 **variants**. A variant names the operations its orders request (all of them when it names
 none) and its **parameters**: values of product variables that hold for the whole order, set
-when the order starts (e.g. ``engine.bolts_e = 20``). The model's preconditions read them, so one
+when the order starts (e.g. ``engine.count_bolts_e = 20``). The model's preconditions read them, so one
 model serves every variant; an order may override a parameter's value, never add one.
 
 A model with no variants has one implicit variant, ``default``: every operation, no parameters,

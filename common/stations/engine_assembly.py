@@ -18,8 +18,8 @@ The story, one planning operation per step (`OPERATION_ORDER`):
 
 Variants (an order asks for one; DESIGN.md §12): `full` is the story above; `light` is an engine
 with 20 bolts, 2 filters and no oil pipes, so its orders leave out TightenBolt21-24, MountFilter3,
-TightenFilter3, MountOilPipes and TightenPipe1-2. The variant's parameters `engine.bolts_e`,
-`engine.filters_e` and `engine.pipes_e` say how many of each the engine takes; the operations that
+TightenFilter3, MountOilPipes and TightenPipe1-2. The variant's parameters `engine.count_bolts_e`,
+`engine.count_filters_e` and `engine.count_pipes_e` say how many of each the engine takes; the operations that
 wait for every part (ParkNutrunner, AttachFilterTool, RobotHome, AgvLeave, ...) wait only for the
 parts the engine takes, so that one model serves both. (The operator's confirmation of PlaceBolts
 still marks all 24 bolts placed: the operator model's confirmations are fixed actions.)
@@ -81,9 +81,9 @@ FRAME = "engine.frame_e"
 
 # How many bolts, filters and pipes this engine takes: its variant's parameters, set when its order
 # starts and constant through the order. The fewest any variant takes are always required.
-BOLTS_TAKEN = "engine.bolts_e"
-FILTERS_TAKEN = "engine.filters_e"
-PIPES_TAKEN = "engine.pipes_e"
+BOLTS_TAKEN = "engine.count_bolts_e"
+FILTERS_TAKEN = "engine.count_filters_e"
+PIPES_TAKEN = "engine.count_pipes_e"
 FEWEST_BOLTS, FEWEST_FILTERS, FEWEST_PIPES = 20, 2, 0
 
 
