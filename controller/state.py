@@ -44,15 +44,20 @@ class StateStore:
             return
         with self.db:
             self.db.execute("BEGIN")
+            self.write(values, meta)
+
+    def write(self, values: Mapping[str, Value], meta: Mapping[str, object] | None = None) -> None:
+        """`save` inside a transaction the caller holds: the order book commits an order's transition and
+        the values it gives the product variables at once (controller/production/book.py)."""
+        self.db.executemany(
+            "INSERT INTO variables(path, value) VALUES(?, ?) ON CONFLICT(path) DO UPDATE SET value=excluded.value",
+            [(p, json.dumps(v)) for p, v in values.items()],
+        )
+        if meta:
             self.db.executemany(
-                "INSERT INTO variables(path, value) VALUES(?, ?) ON CONFLICT(path) DO UPDATE SET value=excluded.value",
-                [(p, json.dumps(v)) for p, v in values.items()],
+                "INSERT INTO meta(key, value) VALUES(?, ?) ON CONFLICT(key) DO UPDATE SET value=excluded.value",
+                [(k, json.dumps(v)) for k, v in meta.items()],
             )
-            if meta:
-                self.db.executemany(
-                    "INSERT INTO meta(key, value) VALUES(?, ?) ON CONFLICT(key) DO UPDATE SET value=excluded.value",
-                    [(k, json.dumps(v)) for k, v in meta.items()],
-                )
 
     def load(self, model: Model) -> tuple[dict[str, Value], list[str]]:
         """The stored values that fit the model, and a note for each one that does not."""

@@ -12,12 +12,15 @@ from pathlib import Path
 
 from common.config.hubs_toml import ConfigError, ConfigProblem, StationConfig, load_config, load_station
 from common.config.modes import DeviceMode, argument
+from common.config.production import ProductionConfig, ProductionError, plan_from_options
 from common.model import Model, ParseError, parse_predicate
 from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
 from controller import main as controller_process
 from hubs import main as hub_process
 from hubs.main import parse_failures
+
+from .orders_cli import add_production_options, production_plan, register_orders_command
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -130,6 +133,11 @@ def cmd_up(args: argparse.Namespace) -> int:
         station = load_config(config)
         # A device without driver, or a bad parameter, stops here (the sim world adds simulator addresses).
         check_devices(station, mode=args.mode, world=args.mode == DeviceMode.SIM)
+        production = production_plan(args, station, station.load_model())
+        if production is not None:
+            # Checked here, so that a bad option stops before any process starts; the station's loop
+            # queues them once it runs orders (ProductionPlan, common/config/production.py).
+            print(f"statehub: production: {production.describe()}", flush=True)
         if args.model is not None:
             # Every process loads the model its hubs.toml names: one given here could not reach them.
             named = station.station.model
@@ -144,6 +152,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     from .local.inprocess import emulated_delays, run_in_process
 
     model, station = _in_process_station(args)
+    if args.orders is not None or args.mix is not None:
+        in_process_plan = plan_from_options(args.orders, args.mix, ProductionConfig(), model, "--orders")
+        if in_process_plan is not None:
+            print(f"statehub: production: {in_process_plan.describe()}", flush=True)
     print(f"statehub: running station {model.name} in one process, emulated devices "
           f"(speed x{args.speed}, seed {args.seed})", flush=True)
     budget = replace(VIRTUAL_BUDGET, first_expansions=args.plan_expansions, improve_expansions=args.improve_expansions)
@@ -225,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--improve-expansions", type=int, default=0, metavar="N",
                     help="with --in-process: states A* may expand looking for a shorter plan than the first "
                          "(default 0: keep the first plan, the quickest run)")
+    add_production_options(up)
     up.set_defaults(func=cmd_up)
 
     hub = sub.add_parser("hub", help="run one hub of hubs.toml (what its systemd unit runs: python -m hubs)")
@@ -288,6 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .runs.cli import register_run_commands
 
     register_run_commands(sub)
+    register_orders_command(sub)
     return parser
 
 
@@ -309,7 +323,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         from .local.statefile import StateFileError
 
-        if isinstance(exc, SynthesisError | StateFileError):
+        if isinstance(exc, SynthesisError | StateFileError | ProductionError):
             return _fail(str(exc))
         raise
 

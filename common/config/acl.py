@@ -13,8 +13,8 @@ is not trusted to check itself):
   read, for emulated devices), to any `state` and to `ctl/**`.
 * the controller: `put` `cmd` and `ctl/**`, answer `ctl/**` queries, hold `ctl/**`
   liveliness tokens, subscribe to and query anything of the station.
-* an operator ([security] operators: consoles, hubctl): query `ctl/request` and the
-  hubs' `selftest`, subscribe to `ctl/**`, `state` and `selftest`, watch `alive`.
+* an operator ([security] operators: consoles, hubctl, an MES): query `ctl/request`, `ctl/orders`
+  (add, list and cancel orders) and the hubs' `selftest`, subscribe to `ctl/**`, `state` and `selftest`, watch `alive`.
 
 What a process sends TO an authenticated station member is not restricted beyond the
 station's keys: data only flows to a peer whose subscriptions and queryables passed
@@ -32,6 +32,7 @@ from common.config.hubs_toml import StationConfig
 from common.config.security import roles_of
 from common.model import Model, TransitionKind
 from common.wire.keys import Keys
+from common.wire.orders import ORDERS_KEY
 
 ALL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
@@ -69,7 +70,7 @@ def controller_grants(keys: Keys) -> list[Grant]:
 def operator_grants(keys: Keys) -> list[Grant]:
     ctl = keys.ctl("**")
     return [
-        Grant(("query",), (keys.ctl("request"), keys.all_selftest)),
+        Grant(("query",), (keys.ctl("request"), keys.ctl(ORDERS_KEY), keys.all_selftest)),
         Grant(("declare_subscriber",), (ctl, keys.all_state, keys.all_selftest)),
         Grant(("declare_liveliness_subscriber", "liveliness_query"), (keys.all_alive, ctl)),
     ]

@@ -33,6 +33,10 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     operators = ["operator"]     # names whose certificates have the operator role (consoles, hubctl)
     verify_names = true          # a listener's certificate must name the host connected to
 
+    [production]                 # optional: the orders a run queues at its start (common/config/production.py)
+    mix = { full = 3, light = 1 }  # a repeating mix of the model's variants, `count` orders,
+    count = 8                      # or [[production.orders]] tables: variant, product_id, parameters, count
+
     [hubs.pi-tool]               # one table per hub (ECU); the table name is the hub name
     host              = "pi-tool"   # machine (hostname or address) for deploy/ssh
     ssh_user          = "pi"
@@ -75,6 +79,13 @@ from common.config.errors import ConfigError, ConfigProblem, toml_problem, toml_
 from common.config.hostnames import host_problem, user_problem
 from common.config.keylines import KeyLines
 from common.config.modes import DeviceMode, NetworkMode, SecurityMode, words
+from common.config.production import (
+    OrderEntry,
+    ProductionConfig,
+    config_problems,
+    model_problems,
+    order_table_lines,
+)
 from common.model import Model
 from common.stations import ModelLoadError, is_file_reference, load_model, resolve_model_reference
 from common.wire.keys import Keys, station_keys
@@ -150,6 +161,7 @@ class StationConfig(msgspec.Struct, frozen=True):
     controller: ControllerConfig
     hubs: dict[str, HubConfig]
     security: SecurityConfig = SecurityConfig()
+    production: ProductionConfig = ProductionConfig()
 
     @property
     def keys(self) -> Keys:
@@ -300,8 +312,9 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
         raise ConfigError([toml_problem(file, str(exc))]) from None
 
     for key in data:
-        if key not in ("station", "network", "controller", "hubs", "security"):
-            checker.problem((key,), "unknown section (known: station, network, controller, hubs, security)")
+        if key not in ("station", "network", "controller", "hubs", "security", "production"):
+            checker.problem((key,), "unknown section (known: station, network, controller, hubs, security, "
+                                    "production)")
 
     station = network = controller = None
     table = checker.table(data.get("station"), ("station",)) if "station" in data else None
@@ -346,11 +359,13 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
             hubs[hub_name] = hub
 
     security = _load_security(checker, data.get("security", {}), controller, hubs)
+    production = _load_production(checker, data.get("production", {}), text)
     if checker.problems:
         raise ConfigError(checker.problems)
     assert station is not None and network is not None and controller is not None and security is not None
+    assert production is not None
     config = StationConfig(path=file, station=station, network=network, controller=controller, hubs=hubs,
-                           security=security)
+                           security=security, production=production)
     if model is not None:
         check_against_model(config, model, text=text)
     return config
@@ -414,6 +429,47 @@ def _load_security(checker: _Checker, value: object, controller: ControllerConfi
     return security
 
 
+def _load_production(checker: _Checker, value: object, text: str) -> ProductionConfig | None:
+    """[production] (common/config/production.py); an order table's problems name its index and line."""
+    table = checker.table(value, ("production",))
+    if table is None:
+        return None
+    entries: list[OrderEntry] = []
+    orders = table.get("orders", [])
+    lines = order_table_lines(text)
+    ok = True
+    if not isinstance(orders, list):
+        checker.problem(("production", "orders"), f"must be an array of tables, not {toml_type(orders)}")
+        orders, ok = [], False
+    for i, entry in enumerate(orders):
+        key = f"production.orders[{i}]"
+        line = lines[i] if i < len(lines) else checker.lines.line_of(("production", "orders"))
+        try:
+            entries.append(msgspec.convert(entry, OrderEntry))
+        except msgspec.ValidationError as exc:
+            checker.problems.append(ConfigProblem(checker.file, line, key, re.sub(r"\s*- at `\$[^`]*`", "",
+                                                                                  str(exc))))
+            ok = False
+    production = checker.section(ProductionConfig, table, ("production",), extra={"orders": entries},
+                                 skip=("orders",))
+    if production is None or not ok:
+        return None
+    for path, message in config_problems(production):
+        _production_problem(checker, path, message, lines)
+    return production
+
+
+def _production_problem(checker: _Checker, path: tuple[str, ...], message: str, order_lines: list[int]) -> None:
+    """A problem of [production]; `orders[i]` in `path` is the i-th order table."""
+    index = re.fullmatch(r"orders\[(\d+)\]", path[1]) if len(path) > 1 else None
+    if index is None:
+        checker.problem(path, message)
+        return
+    i = int(index.group(1))
+    line = order_lines[i] if i < len(order_lines) else checker.lines.line_of(("production", "orders"))
+    checker.problems.append(ConfigProblem(checker.file, line, ".".join(path), message))
+
+
 # --- the station model ----------------------------------------------------------------------
 
 def _check_type(checker: _Checker, hub: str, resource: str, device_type: str, model: Model) -> None:
@@ -445,6 +501,8 @@ def check_against_model(config: StationConfig, model: Model, *, text: str | None
         if resource not in config.resources:
             checker.problem(("station", "model"), f"resource {resource!r} of station model {model.name!r} "
                                                   f"is served by no hub")
+    for path, message in model_problems(config.production, model):
+        _production_problem(checker, path, message, order_table_lines(text))
     if checker.problems:
         raise ConfigError(checker.problems)
 

@@ -18,9 +18,11 @@ from .predicates import FALSE, TRUE, And, Const, Eq, In, IsTrue, Ne, Not, Or, Pr
 from .resource import Resource
 from .transitions import ActionsLike, Transition, TransitionKind, automatic, deliberate, effect
 from .variables import BOOL, Domain, Kind, Value, Variable, command, estimated, measured
+from .variants import DEFAULT_VARIANT, Variant, variant
 
 __all__ = [
     "BOOL",
+    "DEFAULT_VARIANT",
     "FALSE",
     "OPERATION_STATES",
     "RUNNING",
@@ -54,6 +56,7 @@ __all__ = [
     "TransitionKind",
     "Value",
     "Variable",
+    "Variant",
     "ability",
     "all_of",
     "any_of",
@@ -70,4 +73,5 @@ __all__ = [
     "parse_action",
     "parse_predicate",
     "tracking",
+    "variant",
 ]

@@ -17,6 +17,7 @@ from .predicates import Predicate, Ref
 from .resource import Resource
 from .transitions import Transition, TransitionKind
 from .variables import Kind, Value, Variable
+from .variants import Variant, implicit_variant, product_paths, variant_problems
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,10 @@ class Model:
     operations: tuple[Operation, ...] = ()
     specifications: tuple[Specification, ...] = ()
     validate_on_init: bool = field(default=True, repr=False)
+    # Production (common/model/variants.py): patterns of the estimated variables that belong to the
+    # product, and the variants an order may ask for (none: one implicit variant, every operation).
+    product: tuple[str, ...] = ()
+    variants: tuple[Variant, ...] = ()
 
     def __post_init__(self) -> None:
         self.resources = tuple(self.resources)
@@ -52,6 +57,8 @@ class Model:
         self.tracking = tuple(self.tracking)
         self.operations = tuple(self.operations)
         self.specifications = tuple(self.specifications)
+        self.product = tuple(self.product)
+        self.variants = tuple(self.variants)
         if self.validate_on_init:
             problems = self.problems()
             if problems:
@@ -98,6 +105,18 @@ class Model:
     @cached_property
     def resource_by_name(self) -> dict[str, Resource]:
         return {r.name: r for r in self.resources}
+
+    @cached_property
+    def product_variables(self) -> tuple[str, ...]:
+        """The variables an order owns: the estimated ones `product` names, then every operation's state.
+        They are archived with the order when the product leaves and return to their initial values."""
+        estimated = [v for v in self._all_variables() if v.kind is Kind.ESTIMATED and not v.path.startswith("op.")]
+        return product_paths(self.product, estimated, self.operations)
+
+    @cached_property
+    def variant_by_name(self) -> dict[str, Variant]:
+        """The declared variants, or the implicit one of a model that declares none."""
+        return {v.name: v for v in (self.variants or (implicit_variant(),))}
 
     def resource_of(self, path: str) -> Resource | None:
         return self.resource_by_name.get(path.split(".", 1)[0])
@@ -150,6 +169,10 @@ class Model:
             problems += self._check_predicate(f"operation {op.name} (goal)", op.goal, variables)
         for spec in self.specifications:
             problems += self._check_predicate(f"specification {spec.name}", spec.forbidden, variables)
+        if not problems:  # the selection test reads the operations' predicates: only once they are sound
+            written = {path for t in self.transitions for path in t.written()}
+            problems += [Problem(where, message) for where, message in
+                         variant_problems(self.variants, self.product, self.operations, variables, written)]
         # A phase predicate is also its transitions' guard: report each problem once.
         return list(dict.fromkeys(problems))
 

@@ -16,6 +16,14 @@ The story, one planning operation per step (`OPERATION_ORDER`):
    by hand from its dock slot.
 5. The robot docks its tool and goes home; the AGV and the MiR leave.
 
+Variants (an order asks for one; DESIGN.md §12): `full` is the story above; `light` is an engine
+with 20 bolts, 2 filters and no oil pipes, so its orders leave out TightenBolt21-24, MountFilter3,
+TightenFilter3, MountOilPipes and TightenPipe1-2. The variant's parameters `engine.count_bolts_e`,
+`engine.count_filters_e` and `engine.count_pipes_e` say how many of each the engine takes; the operations that
+wait for every part (ParkNutrunner, AttachFilterTool, RobotHome, AgvLeave, ...) wait only for the
+parts the engine takes, so that one model serves both. (The operator's confirmation of PlaceBolts
+still marks all 24 bolts placed: the operator model's confirmations are fixed actions.)
+
 Global estimated state lives under `engine.`: `engine.frame_e`, `engine.bolt<i>_e`,
 `engine.filter<k>_e`, `engine.pipe<k>_e`. Tracking abilities set it from
 measurements (a bolt is tightened when the nutrunner reports torque while the robot
@@ -42,6 +50,7 @@ from common.model import (
     Predicate,
     Specification,
     Variable,
+    Variant,
     all_of,
     any_of,
     estimated,
@@ -49,6 +58,7 @@ from common.model import (
     operation,
     operation_running,
     tracking,
+    variant,
 )
 from common.resources import agv, camera, dock, lift, mir, nutrunner, operator, rfid, rsp, ur
 from common.resources.rsp import TOOLS, default_dock_poses
@@ -68,6 +78,13 @@ FILTER_STATES = Domain.enum("absent", "mounted", "tightened")
 PIPE_STATES = Domain.enum("absent", "mounted", "tightened")  # a pipe is tightened when its plate is
 
 FRAME = "engine.frame_e"
+
+# How many bolts, filters and pipes this engine takes: its variant's parameters, set when its order
+# starts and constant through the order. The fewest any variant takes are always required.
+BOLTS_TAKEN = "engine.count_bolts_e"
+FILTERS_TAKEN = "engine.count_filters_e"
+PIPES_TAKEN = "engine.count_pipes_e"
+FEWEST_BOLTS, FEWEST_FILTERS, FEWEST_PIPES = 20, 2, 0
 
 
 def bolt(i: int) -> str:
@@ -153,7 +170,24 @@ def build_model() -> Model:
         nutrunner("nr"),
         lift("lift"),
     )
-    return Model("engine_assembly", resources, _engine_variables(), _tracking(), _operations(), _specifications())
+    return Model("engine_assembly", resources, _engine_variables(), _tracking(), _operations(), _specifications(),
+                 product=("engine.*",), variants=_variants())
+
+
+def _variants() -> tuple[Variant, ...]:
+    light_leaves_out = {
+        *(f"TightenBolt{i}" for i in BOLTS if i > FEWEST_BOLTS),
+        *(f"MountFilter{k}" for k in FILTERS if k > FEWEST_FILTERS),
+        *(f"TightenFilter{k}" for k in FILTERS if k > FEWEST_FILTERS),
+        "MountOilPipes", *(f"TightenPipe{k}" for k in PIPES),
+    }
+    return (
+        variant("full", parameters={BOLTS_TAKEN: BOLT_COUNT, FILTERS_TAKEN: FILTER_COUNT, PIPES_TAKEN: PIPE_COUNT},
+                description=f"{BOLT_COUNT} bolts, {FILTER_COUNT} oil filters, {PIPE_COUNT} oil pipes"),
+        variant("light", [name for name in OPERATION_ORDER if name not in light_leaves_out],
+                {BOLTS_TAKEN: FEWEST_BOLTS, FILTERS_TAKEN: FEWEST_FILTERS, PIPES_TAKEN: FEWEST_PIPES},
+                description=f"{FEWEST_BOLTS} bolts, {FEWEST_FILTERS} oil filters, no oil pipes"),
+    )
 
 
 def _engine_variables() -> tuple[Variable, ...]:
@@ -162,6 +196,11 @@ def _engine_variables() -> tuple[Variable, ...]:
         *(estimated(bolt(i), BOLT_STATES, "absent", f"frame bolt {i}") for i in BOLTS),
         *(estimated(oil_filter(k), FILTER_STATES, "absent", f"oil filter {k}") for k in FILTERS),
         *(estimated(pipe(k), PIPE_STATES, "absent", f"oil pipe {k} and its plate") for k in PIPES),
+        # Last, so that the variables before them keep their places in the packed state.
+        estimated(BOLTS_TAKEN, Domain.range(FEWEST_BOLTS, BOLT_COUNT), BOLT_COUNT, "frame bolts this engine takes"),
+        estimated(FILTERS_TAKEN, Domain.range(FEWEST_FILTERS, FILTER_COUNT), FILTER_COUNT,
+                  "oil filters this engine takes"),
+        estimated(PIPES_TAKEN, Domain.range(FEWEST_PIPES, PIPE_COUNT), PIPE_COUNT, "oil pipes this engine takes"),
     )
 
 
@@ -219,13 +258,22 @@ def _every(paths: tuple[str, ...], condition: str) -> Predicate:
     return all_of(*(f"{path} {condition}" for path in paths))
 
 
+def _every_taken(paths: tuple[str, ...], condition: str, taken: str, fewest: int) -> Predicate:
+    """`condition` of each part the engine takes: the first `fewest` always, part n once `taken` >= n."""
+    return all_of(*(f"{path} {condition}" if n <= fewest
+                    else any_of(f"{path} {condition}", In(taken, tuple(range(fewest, n))))
+                    for n, path in enumerate(paths, start=1)))
+
+
 def _operations() -> tuple[Operation, ...]:
     bolts, filters, pipes = tuple(map(bolt, BOLTS)), tuple(map(oil_filter, FILTERS)), tuple(map(pipe, PIPES))
     frame_placed = f"{FRAME} == placed"
     bolts_placed = _every(bolts, "!= absent")
-    bolts_tightened = _every(bolts, "== tightened")
-    filters_mounted = _every(filters, "!= absent")
-    all_tightened = all_of(bolts_tightened, _every(filters, "== tightened"), _every(pipes, "== tightened"))
+    bolts_tightened = _every_taken(bolts, "== tightened", BOLTS_TAKEN, FEWEST_BOLTS)
+    filters_mounted = _every_taken(filters, "!= absent", FILTERS_TAKEN, FEWEST_FILTERS)
+    filters_tightened = _every_taken(filters, "== tightened", FILTERS_TAKEN, FEWEST_FILTERS)
+    all_tightened = all_of(bolts_tightened, filters_tightened, _every_taken(pipes, "== tightened", PIPES_TAKEN,
+                                                                             FEWEST_PIPES))
     operations = [
         operation("AgvArrive", "agv.pos_m == away && agv.engine_m", "agv.pos_m == at_station",
                   description="the AGV brings the engine"),
@@ -258,7 +306,7 @@ def _operations() -> tuple[Operation, ...]:
         *(operation(f"TightenPipe{k}", all_of(bolts_tightened, f"{pipe(k)} == mounted"), f"{pipe(k)} == tightened",
                     description=f"the operator tightens the plate of oil pipe {k} with the nutrunner")
           for k in PIPES),
-        operation("RobotHome", all_of(bolts_tightened, _every(filters, "== tightened")),
+        operation("RobotHome", all_of(bolts_tightened, filters_tightened),
                   f"ur.pos_m == {HOME} && rsp.tool_m == none", description="the robot docks its tool and goes home"),
         operation("AgvLeave", all_of(all_tightened, f"ur.pos_m == {HOME}"), "agv.pos_m == away",
                   description="the AGV takes the engine away"),

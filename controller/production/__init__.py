@@ -1,0 +1,1 @@
+"""Production: orders, the order book, where orders come from, and throughput (DESIGN.md §12)."""
