@@ -48,7 +48,7 @@ NAMES_SHOWN = 6  # transitions named in a warning's text before "and N more"
 
 
 class HazardKind(Enum):
-    SENSED_DEVICE_MOVES = "an effect reads a device that commands move"
+    SENSED_DEVICE_MOVES = "an effect reads another device that commands change"
     COMMAND_DISABLES_EFFECT = "a command disables an effect that is due"
     TRACKING_NEEDS_TRANSIENT = "tracking needs a value that lasts only an effect's duration"
 
@@ -193,7 +193,7 @@ class _Analysis:
                 f"the durations keep it safe, by timing only: {owner}'s effect takes at most {own.max_s:g} s, "
                 f"{path} changes {gone_after:g} s after the command at the soonest")
         commands = tuple(sorted(found))
-        text = (f"{e.name} ({_outcomes(e)}) reads {path}, which commands move while it is due: "
+        text = (f"{e.name} ({_outcomes(e)}) reads {path}, which commands can change while it is due: "
                 f"{_names(commands)}; {race}")
         remedy = (f"guard those commands with {e.name}'s result ({_outcomes(e)}), or keep {owner}'s duration "
                   f"(now {own}) below the {gone_after:g} s {device} takes to change {path}")
@@ -234,13 +234,21 @@ class _Analysis:
                     yield self._transient_warning(track, path, pairs)
 
     def _transient(self, track: Transition, sets: Transition, resets: Transition) -> bool:
-        """Right after `sets` fires, `track` is enabled and `resets` already is, and would disable it."""
+        """Right after `sets` fires, `track` is enabled and `resets` already is, and would disable it.
+        Before, the controller had settled: no automatic transition that commands the resetting device
+        was pending (it fires at once, so a state with one enabled does not last)."""
+        settled = [Not(a.guard) for a in self._commanding(effect_owner(resets))]
         for set_outcome in sets.outcomes:
             for reset_outcome in resets.outcomes:
                 then = all_of(track.guard, resets.guard, Not(after(track.guard, reset_outcome)))
-                if self.possible(after(then, set_outcome), sets.guard):
+                if self.possible(after(then, set_outcome), sets.guard, *settled):
                     return True
         return False
+
+    def _commanding(self, device: str) -> list[Transition]:
+        """The automatic transitions that write the device's commands."""
+        commands = {v.path for v in self.model.resource_by_name[device].commands}
+        return [t for t in self.commands if t.kind is TransitionKind.AUTOMATIC and t.written() & commands]
 
     def _transient_warning(self, track: Transition, path: str,
                            pairs: Sequence[tuple[Transition, Transition]]) -> TimingHazard:
