@@ -113,7 +113,7 @@ class _Analysis:
         return sorted(p for p in effect.guard.paths()
                       if self.model.var(p).kind is Kind.MEASURED and p.split(".", 1)[0] != owner)
 
-    # --- (a) an effect reads a device that commands move ----------------------------------------
+    # --- (a) an effect reads another device that commands change --------------------------------
     def sensed_device_moves(self) -> Iterable[TimingHazard]:
         for e in self.effects:
             for path in self.measured_of_others(e):
