@@ -116,11 +116,10 @@ def emulator(model: Model, seed: int, **kwargs: object) -> EffectEmulator:
 
 def test_the_emulator_picks_within_the_interval_reproducibly_by_seed() -> None:
     model = engine_assembly.build_model()
-    table = durations_of(model, {"ur": Duration(0.1, 0.3)})
     move = model.transition_by_name["ur.move_to_home.starting.effect"]
 
     def picks(seed: int, speed: float = 1.0) -> list[float]:
-        emulated = emulator(model, seed, durations=table, speed=speed)
+        emulated = emulator(model, seed, delays={"ur": Duration(0.1, 0.3)}, speed=speed)
         return [emulated.delay_of(move) for _ in range(200)]
 
     first = picks(seed=7)

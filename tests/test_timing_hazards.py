@@ -3,6 +3,8 @@ kind, written with `common.model` in tests/stations/timing.py, and a safe one wi
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from common.model import TRUE, Duration, Model, parse_predicate
@@ -113,3 +115,14 @@ def test_hubctl_check_of_a_safe_model(capsys: pytest.CaptureFixture[str]) -> Non
     out = capsys.readouterr().out
     assert "timing hazards: 0 " in out
     assert "fallback" not in out
+
+
+def test_hubctl_check_takes_the_durations_of_hubs_toml(capsys: pytest.CaptureFixture[str]) -> None:
+    """The feeder station of the engine's race hold (tests/timing_stations), its delays in its hubs.toml."""
+    config = Path(__file__).resolve().parent / "timing_stations" / "hubs.toml"
+    assert main(["check", "--config", str(config)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    feeder = next(line for line in lines if line.split()[:2] == ["f", "box_feeder"])
+    assert feeder.split()[2:] == ["0.2", "s", "hubs.toml", "delay"]
+    assert any(line.startswith("  warning [an effect reads another device that commands change]: f.taken")
+               and "the command wins the race: f's effect takes up to 0.2 s" in line for line in lines)
