@@ -6,14 +6,15 @@ import argparse
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
 from common.config.hubs_toml import ConfigError, ConfigProblem, StationConfig, load_config, load_station
 from common.config.modes import DeviceMode, argument
 from common.config.production import ProductionConfig, ProductionError, plan_from_options
-from common.model import Model, ParseError, parse_predicate
+from common.model import DurationTable, Model, ParseError, TransitionKind, parse_predicate
+from common.model.durations import DurationSource, effect_owner
 from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
 from controller import main as controller_process
@@ -28,20 +29,54 @@ def _fail(message: str, code: int = 2) -> int:
     return code
 
 
+def _model_and_durations(args: argparse.Namespace) -> tuple[Model, DurationTable]:
+    """`--config`: the station's model and its devices' `delay`; else `--model` at its declared durations."""
+    from common.resources import durations_of
+
+    if args.config is None:
+        model = load_model(args.model)
+        return model, durations_of(model)
+    if args.model != DEFAULT_MODEL:
+        raise ConfigError([ConfigProblem(args.config, None, "", "give --model or --config, not both")])
+    config, model = load_station(args.config)
+    return model, durations_of(model, config.delays)
+
+
+def _duration_lines(durations: DurationTable, resources: Iterable[str] | None = None) -> list[str]:
+    """One line per resource: its device type, its effects' duration and where that was declared."""
+    wanted = None if resources is None else set(resources)
+    entries = [e for e in durations.entries if wanted is None or e.resource in wanted]
+    width = max((len(e.resource) for e in entries), default=0)
+    type_width = max((len(e.device_type) for e in entries), default=0)
+    return [f"  {e.resource:<{width}}  {e.device_type or '-':<{type_width}}  {e.duration!s:<10}  {e.source.value}"
+            for e in entries]
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from controller.planner import check_operations
     from controller.stack import build_controller_stack
+    from controller.timing_hazards import timing_hazards
 
-    model = load_model(args.model)
+    model, durations = _model_and_durations(args)
     print(f"model {model.name}: {len(model.resources)} resources, {len(model.variables)} variables, "
           f"{len(model.transitions)} transitions, {len(model.operations)} operations, "
           f"{len(model.specifications)} specifications: valid")
+    print("durations of the effects, per resource (type, seconds, declared by):")
+    print("\n".join(_duration_lines(durations)))
+    for entry in durations.entries:
+        if entry.source is DurationSource.FALLBACK:
+            print(f"  warning: {entry.resource}'s type {entry.device_type or '(none)'!r} declares no duration: "
+                  f"its effects run on the fallback guess {entry.duration}")
     stack = build_controller_stack(model)
     supervisor = stack.supervisor
     print(f"supervisor: {len(supervisor.guards)} deliberate transitions get synthesized guards")
     for name, converged in supervisor.converged.items():
         if not converged:
             print(f"  warning: bad states of {name!r} did not converge within the round limit")
+    hazards = timing_hazards(model, durations, supervisor.guards)
+    print(f"timing hazards: {len(hazards)} (warnings: a plan may count on an effect the station does not wait for)")
+    for hazard in hazards:
+        print(f"  warning [{hazard.kind.value}]: {hazard}")
     began = time.perf_counter()
     problems = check_operations(model, stack.compiled, stack.planner)
     for problem in problems:
@@ -52,12 +87,13 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
+    from controller.makespan import earliest_schedule, makespan
     from controller.planner import Budget, NoPlan
     from controller.stack import build_controller_stack
 
     from .local.statefile import load_state
 
-    model = load_model(args.model)
+    model, durations = _model_and_durations(args)
     stack = build_controller_stack(model)
     compiled = stack.compiled
     goals = {}
@@ -91,6 +127,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
     shortest = "a shortest plan" if stats.minimal else "not shown to be a shortest plan within the budget"
     print(f"{len(result.steps)} steps, {shortest}: found in {stats.seconds * 1000:.1f} ms ({stats.method}, "
           f"{stats.expanded} states expanded{first})")
+    steps = [model.transition_by_name[step.transition] for step in result.steps]
+    effects = [t for t in steps if t.kind is TransitionKind.EFFECT]
+    print("durations planned with (per resource: type, seconds, declared by):")
+    print("\n".join(_duration_lines(durations, {effect_owner(t) for t in effects})) or "  (no effect in the plan)")
+    one_by_one = sum(durations.of_transition(t).max_s for t in effects)
+    print(f"predicted makespan: {makespan(earliest_schedule(steps, durations)):.2f} s with each step as early as its "
+          f"causal order allows and each effect at its longest ({one_by_one:.2f} s one step after another)")
     return 0
 
 
@@ -266,7 +309,12 @@ def build_parser() -> argparse.ArgumentParser:
     console.add_argument("--certs", metavar="DIR", help="the certificate directory (default: [security] certs)")
     console.set_defaults(func=cmd_console)
 
-    plan = with_model(sub.add_parser("plan", help="print the shortest plan to a goal"))
+    def with_station(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+        with_model(p).add_argument(
+            "--config", help="take the model and the devices' `delay` (durations) from this hubs.toml instead")
+        return p
+
+    plan = with_station(sub.add_parser("plan", help="print the shortest plan to a goal, its durations and makespan"))
     plan.add_argument("goal", nargs="+", help="an operation name or a predicate, e.g. 'engine.bolt7_e == tightened'")
     plan.add_argument("--from", dest="start", help="TOML file of variable values to start from")
     plan.add_argument("--time-limit", type=float, default=30.0,
@@ -275,7 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="print each step's synthesized guard in full instead of naming its specifications")
     plan.set_defaults(func=cmd_plan)
 
-    check = with_model(sub.add_parser("check", help="validate the model and every operation's reachability"))
+    check = with_station(sub.add_parser(
+        "check", help="validate the model, print its durations, name its timing hazards and check every operation's "
+                      "reachability"))
     check.set_defaults(func=cmd_check)
 
     from .remote.cli import register_deploy_commands

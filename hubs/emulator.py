@@ -1,9 +1,10 @@
 """The model-driven emulator: the physical device is its resource's effect transitions.
 
-An enabled effect fires after its device's delay (common/model/durations.py, scaled by `speed`); an effect with several
-outcomes picks one with a seeded random choice, so a nutrunner that fails with
-probability p is `failure={"nr": p}`. The emulator keeps no control state: it reads
-the command values it is given and writes measured values only.
+An enabled effect fires after a time within its duration interval (the station's
+`DurationTable`, common/model/durations.py), picked with a seeded random and scaled by
+`speed`; an effect with several outcomes picks one with the same random, so a nutrunner
+that fails with probability p is `failure={"nr": p}`. The emulator keeps no control
+state: it reads the command values it is given and writes measured values only.
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ import random
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 
-from common.model import Model, Transition, TransitionKind, Value, apply_all
-from common.model.durations import effect_owner, resource_delay
+from common.model import Duration, DurationTable, Model, Transition, TransitionKind, Value, apply_all
+from common.model.durations import as_duration, effect_owner
+from common.resources import durations_of
 
 
 @dataclass
@@ -31,8 +33,9 @@ class EffectEmulator:
         speed: float = 1.0,
         seed: int = 0,
         failure: Mapping[str, float] | None = None,
-        delays: Mapping[str, float] | None = None,
+        delays: Mapping[str, Duration | float] | None = None,
     ) -> None:
+        """`delays`: hubs.toml's `delay` by resource (seconds, or an interval), over the model's durations."""
         if speed <= 0:
             raise ValueError(f"speed must be positive, got {speed}")
         self.model = model
@@ -47,7 +50,8 @@ class EffectEmulator:
         self.speed = speed
         self.random = random.Random(seed)
         self.failure = dict(failure or {})
-        self.delays = dict(delays or {})
+        self.durations: DurationTable = durations_of(model, {r: as_duration(d) for r, d in (delays or {}).items()})
+        self._intervals: dict[str, Duration] = {}  # effect -> its interval at this speed
         self.pending: dict[str, _Scheduled] = {}
         self.paths = frozenset(p for t in self.effects for p in t.guard.paths() | t.written())
 
@@ -56,13 +60,16 @@ class EffectEmulator:
         return {p.split(".", 1)[0] for p in t.written()}
 
     def delay_of(self, t: Transition) -> float:
-        return resource_delay(self.model.resource_by_name[effect_owner(t)], self.delays) / self.speed
+        """How long this occurrence of effect `t` takes: a time within its interval at this speed."""
+        interval = self._intervals.get(t.name)
+        if interval is None:
+            interval = self._intervals[t.name] = self.durations.of_transition(t).scaled(self.speed)
+        return interval.pick(self.random)
 
     def _choose(self, t: Transition) -> int:
         if len(t.outcomes) == 1:
             return 0
-        resource = next(iter(t.written())).split(".", 1)[0]
-        p_fail = self.failure.get(resource, 0.0)
+        p_fail = self.failure.get(effect_owner(t), 0.0)
         if self.random.random() >= p_fail:
             return 0  # the first outcome is the nominal one (torque reached)
         return self.random.randrange(1, len(t.outcomes))

@@ -30,7 +30,7 @@ from typing import Any
 
 import msgspec
 
-from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, StationConfig
+from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, StationConfig, parse_delay
 from common.config.modes import DeviceMode, words
 from common.model import Model
 
@@ -228,7 +228,7 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
                 # a seed per resource: two emulated devices never share one random sequence
                 seed=seed ^ zlib.crc32(resource.encode()),
                 failure_probability=(failure or {}).get(resource, float(params.get("failure_probability", 0.0))),
-                delay=float(params["delay"]) if "delay" in params else None,
+                delay=parse_delay(params["delay"]) if "delay" in params else device.delay,
             )
         else:
             drivers[resource] = make_driver(resource, device.type, chosen, params)

@@ -13,7 +13,7 @@ import pytest
 from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.bus.protocol import Sample
 from common.config.hubs_toml import StationConfig, load_station
-from common.model import Model, Value
+from common.model import Duration, Model, Value
 from common.wire.ctl import EVENT_WINDOW, Event, HubGone, PlanFound, ReplanCause, Replanned, ReplanReason, StatusMessage
 from common.wire.messages import HubStatus
 from controller.events import EventLog
@@ -121,7 +121,7 @@ def _station_time(output: str) -> float:
 def test_the_in_process_runner_takes_each_devices_delay_from_hubs_toml(tmp_path: Path,
                                                                        capsys: pytest.CaptureFixture[str]) -> None:
     config, _ = load_station(STATION)
-    assert emulated_delays(config) == {"nr": 0.25, "ur": 0.15}
+    assert emulated_delays(config) == {"nr": Duration.fixed(0.25), "ur": Duration.fixed(0.15)}
     slow = tmp_path / "hubs.toml"
     slow.write_text(STATION.read_text().replace("delay = 0.15", "delay = 1.5"))
     times = []

@@ -28,6 +28,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import load_station
+from common.model import Duration
 from common.stations import engine_assembly as ea
 from deploy.local.simworld import SimWorld
 from deploy.local.station import Options, run_station
@@ -97,7 +98,7 @@ def test_params_file_overrides_driver_parameters(tmp_path: Path) -> None:
     nutrunner = drivers["nr"]
     assert isinstance(nutrunner, EmulatedDriver)
     assert nutrunner.emulator.failure == {"nr": 1.0}
-    assert nutrunner.emulator.delays == {"nr": 0.5}
+    assert nutrunner.emulator.durations.of_resource("nr") == Duration.fixed(0.5)
     toml = tmp_path / "o.toml"
     toml.write_text('[nr]\ndelay = 0.5\n')
     assert load_overrides(toml) == {"nr": {"delay": 0.5}}

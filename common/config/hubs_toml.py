@@ -48,6 +48,8 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     [hubs.pi-tool.devices.nr]    # one table per resource the hub serves; the table name is the
     type = "nutrunner"           # resource name in the station model; type: its device type (below)
     mode = "emulate"             # "emulate" (model effects) | "sim" (driver against a simulator) | "real"
+    delay = [0.1, 0.3]           # optional: seconds one of its effects takes, a number or a [min, max]
+                                 # interval; overrides its model's duration (common/model/durations.py)
     bus = 1                      # anything else: driver parameters, checked by the type's driver
 
 Device types: any. A device runs in `emulate` mode from the station model alone, whatever
@@ -86,7 +88,7 @@ from common.config.production import (
     model_problems,
     order_table_lines,
 )
-from common.model import Model
+from common.model import Duration, Model
 from common.stations import ModelLoadError, is_file_reference, load_model, resolve_model_reference
 from common.wire.keys import Keys, station_keys
 from controller.recording.settings import RecordingConfig
@@ -140,6 +142,27 @@ class DeviceConfig(msgspec.Struct, frozen=True):
     mode: DeviceMode = DeviceMode.EMULATE
     params: dict[str, Any] = msgspec.field(default_factory=dict)  # the driver parameters
     line: int = 0  # where it is declared, for later error messages
+    delay: Duration | None = None  # how long one of its effects takes, when hubs.toml says so
+
+
+def parse_delay(value: object) -> Duration:
+    """A device's `delay`: seconds (fixed) or a `[min, max]` pair. Raises ValueError saying what is wrong."""
+    def seconds(item: object) -> float:
+        if isinstance(item, bool) or not isinstance(item, int | float):
+            raise ValueError(f"expected seconds, a number, found {toml_type(item)} {item!r}")
+        return float(item)
+
+    if isinstance(value, list):
+        if len(value) != 2:
+            raise ValueError(f"an interval is [min, max], two numbers: found {len(value)} item(s) {value!r}")
+        low, high = seconds(value[0]), seconds(value[1])
+    else:
+        try:
+            low = high = seconds(value)
+        except ValueError:
+            raise ValueError(f"expected seconds (a number) or an interval [min, max], found {toml_type(value)} "
+                             f"{value!r}") from None
+    return Duration(low, high)
 
 
 class HubConfig(msgspec.Struct, frozen=True):
@@ -181,6 +204,11 @@ class StationConfig(msgspec.Struct, frozen=True):
 
     def device(self, resource: str) -> DeviceConfig:
         return self.hub_of(resource).devices[resource]
+
+    @property
+    def delays(self) -> dict[str, Duration]:
+        """resource -> the `delay` its device table gives (devices without one are left out)."""
+        return {r: d.delay for hub in self.hubs.values() for r, d in hub.devices.items() if d.delay is not None}
 
     def network_for(self, process: str) -> NetworkConfig:
         """The network settings of "controller" or of a hub (its listen/connect override [network])."""
@@ -401,7 +429,14 @@ def _load_hub(checker: _Checker, name: str, value: object, served: dict[str, str
                                    f"a resource belongs to exactly one hub")
         else:
             served[resource] = name
-        device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource}, free=True)
+        delay = None
+        if "delay" in device_table:
+            try:
+                delay = parse_delay(device_table["delay"])
+            except ValueError as exc:
+                checker.problem((*dpath, "delay"), str(exc))
+        device = checker.section(DeviceConfig, device_table, dpath, extra={"resource": resource, "delay": delay},
+                                 free=True, skip=("delay",))
         if device is not None:
             devices[resource] = device
     hub = checker.section(HubConfig, table, path, extra={"name": name, "devices": devices}, skip=("devices",))

@@ -2,6 +2,7 @@
 
 from .abilities import STANDARD_PHASES, Ability, Phase, ability, tracking
 from .actions import Assign, apply_all
+from .durations import Duration, DurationTable
 from .model import Model, ModelError, Problem
 from .operations import (
     OPERATION_STATES,
@@ -34,6 +35,8 @@ __all__ = [
     "Assign",
     "Const",
     "Domain",
+    "Duration",
+    "DurationTable",
     "Eq",
     "In",
     "IsTrue",

@@ -1,50 +1,176 @@
-"""How long a device's effects take: the one table the emulator and the controller's engine read.
+"""How long effects take: a duration interval per resource, the one source every reader of time uses.
 
-Seconds an effect takes at speed 1, by device type: the operator is slower than the robot. A
-device type of a station's own says its delay in its resource model (`parameters["emulated_delay"]`),
-else it gets FALLBACK_DELAY; `delay` per device in hubs.toml overrides both (`overrides`, by resource).
-An effect belongs to the resource whose measured variable it writes.
+Every effect takes between `min_s` and `max_s` seconds from the moment its guard holds (DESIGN.md
+§4, "Time is part of the model"). An effect belongs to the resource whose measured variables it
+writes, so a duration is kept per resource, chosen in this order:
+
+1. `delay` of the device in hubs.toml (a number, or a `[min, max]` pair: `common/config/hubs_toml.py`);
+2. the resource's own declaration in its model (`Resource.duration`; a station's own device type
+   says it there; `parameters["emulated_delay"] = seconds` is the older spelling of the same);
+3. the declaration of its standard device type (`DURATION` in each `common/resources/*.py`, by type
+   name in `common.resources.TYPE_DURATIONS`);
+4. `FALLBACK`, which `hubctl check` names: a type that declares nothing runs on a guess.
+
+`common.resources.durations_of(model, configured)` builds a station's table with the standard types'
+declarations; the emulator, `hubctl plan` and `hubctl check` read that table, and the planner, the
+scheduler and the cycle bound are to read the same one. Deliberate and automatic transitions are the
+controller's own and take no time.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+import random
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING
 
-from .model import Model
-from .resource import Resource
 from .transitions import Transition, TransitionKind
 
-DEFAULT_DELAYS: dict[str, float] = {
-    "nutrunner": 0.12,
-    "ur": 0.15,
-    "rsp": 0.15,
-    "dock": 0.1,
-    "lift": 0.3,
-    "mir": 0.8,
-    "agv": 0.8,
-    "rfid": 0.4,
-    "camera": 0.1,
-    "operator": 0.5,
-}
-FALLBACK_DELAY = 0.2
+if TYPE_CHECKING:
+    from .model import Model
+    from .resource import Resource
 
 
-def resource_delay(resource: Resource, overrides: Mapping[str, float] | None = None) -> float:
-    """Seconds each effect of `resource` takes at speed 1."""
-    if overrides and resource.name in overrides:
-        return overrides[resource.name]
-    own = resource.parameters.get("emulated_delay")
-    if isinstance(own, int | float) and not isinstance(own, bool) and own >= 0:
-        return float(own)
-    return DEFAULT_DELAYS.get(resource.device_type, FALLBACK_DELAY)
+@dataclass(frozen=True)
+class Duration:
+    """An interval of seconds, `min_s <= max_s`, both finite and not negative."""
+
+    min_s: float
+    max_s: float
+
+    def __post_init__(self) -> None:
+        for bound in (self.min_s, self.max_s):
+            if isinstance(bound, bool) or not isinstance(bound, int | float) or not math.isfinite(bound) or bound < 0:
+                raise ValueError(f"a duration is seconds, finite and not negative: got {bound!r}")
+        if self.min_s > self.max_s:
+            raise ValueError(f"a duration's min ({self.min_s:g} s) is above its max ({self.max_s:g} s)")
+
+    @classmethod
+    def fixed(cls, seconds: float) -> Duration:
+        return cls(seconds, seconds)
+
+    @property
+    def is_fixed(self) -> bool:
+        return self.min_s == self.max_s
+
+    def scaled(self, speed: float) -> Duration:
+        """The interval at `speed` (2 = twice as fast), as the emulator's `--speed` runs it."""
+        return Duration(self.min_s / speed, self.max_s / speed)
+
+    def pick(self, rng: random.Random) -> float:
+        """A time within the interval. A fixed duration draws nothing from `rng`, so runs recorded
+        with fixed delays replay the same random choices of outcomes."""
+        if self.is_fixed:
+            return self.min_s
+        return rng.uniform(self.min_s, self.max_s)
+
+    def __str__(self) -> str:
+        if self.is_fixed:
+            return f"{self.min_s:g} s"
+        return f"{self.min_s:g}-{self.max_s:g} s"
 
 
-def effect_owner(t: Transition) -> str:
-    return next(iter(t.written())).split(".", 1)[0]
+INSTANT = Duration.fixed(0.0)
+# What an effect of a device type that declares no duration takes: a guess, said by `hubctl check`.
+FALLBACK = Duration.fixed(0.2)
 
 
-def effect_delays(model: Model, overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-    """Seconds each effect transition of the model takes at speed 1, by transition name."""
-    return {t.name: resource_delay(model.resource_by_name[effect_owner(t)], overrides)
-            for t in model.ability_transitions
-            if t.kind is TransitionKind.EFFECT and t.written() and effect_owner(t) in model.resource_by_name}
+class DurationSource(Enum):
+    """Where a resource's duration was declared (highest precedence first)."""
+
+    CONFIG = "hubs.toml delay"
+    RESOURCE = "the resource's model"
+    DEVICE_TYPE = "its device type"
+    FALLBACK = "fallback: its type declares none"
+
+
+@dataclass(frozen=True)
+class ResourceDuration:
+    resource: str
+    device_type: str
+    duration: Duration
+    source: DurationSource
+
+
+def declared_duration(resource: Resource) -> Duration | None:
+    """What the resource's model itself declares, if anything."""
+    if resource.duration is not None:
+        return resource.duration
+    legacy = resource.parameters.get("emulated_delay")
+    if isinstance(legacy, int | float) and not isinstance(legacy, bool) and legacy >= 0:
+        return Duration.fixed(float(legacy))
+    return None
+
+
+class DurationTable:
+    """The duration of every resource's effects in one station."""
+
+    def __init__(self, entries: Iterable[ResourceDuration]) -> None:
+        self._entries: dict[str, ResourceDuration] = {e.resource: e for e in entries}
+
+    @classmethod
+    def build(cls, model: Model, *, type_defaults: Mapping[str, Duration],
+              configured: Mapping[str, Duration] | None = None) -> DurationTable:
+        """`type_defaults`: device type -> its declared duration; `configured`: resource -> hubs.toml's delay."""
+        configured = configured or {}
+        unknown = sorted(set(configured) - set(model.resource_by_name))
+        if unknown:
+            raise KeyError(f"model {model.name!r} has no resource {', '.join(unknown)} (a configured delay)")
+        entries = []
+        for resource in model.resources:
+            own = declared_duration(resource)
+            if resource.name in configured:
+                duration, source = configured[resource.name], DurationSource.CONFIG
+            elif own is not None:
+                duration, source = own, DurationSource.RESOURCE
+            elif resource.device_type in type_defaults:
+                duration, source = type_defaults[resource.device_type], DurationSource.DEVICE_TYPE
+            else:
+                duration, source = FALLBACK, DurationSource.FALLBACK
+            entries.append(ResourceDuration(resource.name, resource.device_type, duration, source))
+        return cls(entries)
+
+    @property
+    def entries(self) -> tuple[ResourceDuration, ...]:
+        return tuple(self._entries.values())
+
+    def entry(self, resource: str) -> ResourceDuration:
+        try:
+            return self._entries[resource]
+        except KeyError:
+            raise KeyError(f"no duration for resource {resource!r}: it is not in the station model") from None
+
+    def of_resource(self, resource: str) -> Duration:
+        return self.entry(resource).duration
+
+    def of_transition(self, transition: Transition) -> Duration:
+        """An effect takes its resource's duration; the controller's own transitions take no time."""
+        if transition.kind is not TransitionKind.EFFECT:
+            return INSTANT
+        return self.of_resource(effect_owner(transition))
+
+
+def effect_owner(transition: Transition) -> str:
+    """The resource whose device makes an effect happen: the one whose measured variables it writes."""
+    written = sorted(transition.written())
+    if not written:
+        raise ValueError(f"effect {transition.name} writes nothing")
+    return written[0].split(".", 1)[0]
+
+
+def effect_delays(model: Model, configured: Mapping[str, Duration | float] | None = None) -> dict[str, float]:
+    """The longest each effect of the model takes, by transition name: what the engine bounds a held
+    step by (controller/engine.py). `configured`: resource -> hubs.toml's delay."""
+    # The standard types' declarations live in common.resources, a package built on this one.
+    from common.resources import durations_of
+
+    table = durations_of(model, {r: as_duration(d) for r, d in (configured or {}).items()})
+    return {t.name: table.of_transition(t).max_s for t in model.ability_transitions
+            if t.kind is TransitionKind.EFFECT and t.written()}
+
+
+def as_duration(value: Duration | float) -> Duration:
+    """A duration as given: an interval, or a number of seconds (fixed)."""
+    return value if isinstance(value, Duration) else Duration.fixed(value)

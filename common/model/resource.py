@@ -6,6 +6,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from .abilities import Ability
+from .durations import Duration
 from .variables import Kind, Variable
 
 
@@ -18,6 +19,10 @@ class Resource:
     # Random command sequences may move it (a robot): model-based tests refuse it by default.
     unsafe_for_random_commands: bool = False
     parameters: dict[str, object] = field(default_factory=dict, hash=False, compare=False)
+    # How long its effects take, when its model says so (a station's own device type); else its
+    # standard type's, or hubs.toml's `delay` (common/model/durations.py). Not in repr: recordings
+    # identify a model by its repr's hash, which durations (like hubs.toml's delay) never entered.
+    duration: Duration | None = field(default=None, compare=False, repr=False)
 
     def of_kind(self, kind: Kind) -> tuple[Variable, ...]:
         return tuple(v for v in self.variables if v.kind is kind)
@@ -52,4 +57,4 @@ class Resource:
 
     def with_abilities(self, extra: Iterable[Ability]) -> Resource:
         return Resource(self.name, self.variables, (*self.abilities, *extra), self.device_type,
-                        self.unsafe_for_random_commands, self.parameters)
+                        self.unsafe_for_random_commands, self.parameters, self.duration)

@@ -7,9 +7,13 @@ arrives. `engine_m` says it carries an engine; the model never changes it.
 
 from __future__ import annotations
 
-from common.model import Domain, Resource, command, measured
+from common.model import Domain, Duration, Resource, command, measured
 
 from ._motion import goto_abilities
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# Leaving a station, or arriving at the next one.
+DURATION = Duration.fixed(0.8)
 
 MOVING = "moving"
 

@@ -11,7 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from common.model import Ability, Domain, In, Not, Phase, Predicate, Resource, ability, measured
+from common.model import Ability, Domain, Duration, In, Not, Phase, Predicate, Resource, ability, measured
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# Seeing the operator in another zone.
+DURATION = Duration.fixed(0.1)
 
 ZONES = ("outside", "shared", "robot")
 OUTSIDE = "outside"

@@ -16,9 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-from common.model import FALSE, Ability, In, Phase, Predicate, Resource, ability, all_of, any_of, measured
+from common.model import FALSE, Ability, Duration, In, Phase, Predicate, Resource, ability, all_of, any_of, measured
 
 from .rsp import TOOLS, check_dock_poses
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# A slot's presence sensor seeing a tool arrive or leave.
+DURATION = Duration.fixed(0.1)
 
 
 def dock(name: str = "dock", robot: str = "ur", changer: str = "rsp", dock_poses: Mapping[str, str] | None = None,

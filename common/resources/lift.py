@@ -6,9 +6,13 @@ lift leaves (`pos_m := between`) and arrives (`pos_m := target`).
 
 from __future__ import annotations
 
-from common.model import Domain, Resource, command, measured
+from common.model import Domain, Duration, Resource, command, measured
 
 from ._motion import goto_abilities
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# Leaving a position, or arriving at the next one.
+DURATION = Duration.fixed(0.3)
 
 BETWEEN = "between"
 

@@ -11,7 +11,11 @@
 
 from __future__ import annotations
 
-from common.model import Phase, Resource, ability, command, measured
+from common.model import Duration, Phase, Resource, ability, command, measured
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# A tightening step: the spindle starting, the torque (or the failure), the spindle stopping.
+DURATION = Duration.fixed(0.12)
 
 
 def nutrunner(name: str = "nr") -> Resource:

@@ -24,8 +24,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from common.model import Ability, Assign, Domain, Phase, Resource, ability, command, measured
+from common.model import Ability, Assign, Domain, Duration, Phase, Resource, ability, command, measured
 from common.model.transitions import ActionsLike
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# The operator doing a task, or releasing the button: slower than the robot.
+DURATION = Duration.fixed(0.5)
 
 NO_TASK = "none"
 

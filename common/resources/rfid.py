@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from common.model import Phase, Resource, ability, measured
+from common.model import Duration, Phase, Resource, ability, measured
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# The operator scanning a badge.
+DURATION = Duration.fixed(0.4)
 
 
 def rfid(name: str = "rfid") -> Resource:

@@ -26,7 +26,23 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from common.model import Domain, Phase, Predicate, Resource, ability, all_of, any_of, command, effect, measured
+from common.model import (
+    Domain,
+    Duration,
+    Phase,
+    Predicate,
+    Resource,
+    ability,
+    all_of,
+    any_of,
+    command,
+    effect,
+    measured,
+)
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# The changer locking or unlocking, with or without a tool.
+DURATION = Duration.fixed(0.15)
 
 NO_TOOL = "none"
 TOOLS = ("nutrunner", "lift_tool", "filter_tool")

@@ -17,7 +17,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from common.model import Ability, Domain, Phase, Resource, Variable, ability, any_of, command, measured
+from common.model import Ability, Domain, Duration, Phase, Resource, Variable, ability, any_of, command, measured
+
+# How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
+# A move's half: leaving a pose, or arriving at the next one.
+DURATION = Duration.fixed(0.15)
 
 UNKNOWN = "unknown"
 DEFAULT_POSES = ("home", "ready")

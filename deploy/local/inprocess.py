@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from common.config.hubs_toml import StationConfig
-from common.model import Model, OperationState
+from common.model import Duration, Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
 from controller.loop import ControlLoop
@@ -49,10 +49,9 @@ class RunSummary:
         return self.outcome is RunOutcome.FINISHED
 
 
-def emulated_delays(config: StationConfig) -> dict[str, float]:
-    """Each device's `delay` in hubs.toml (seconds an effect takes at speed 1), where it gives one."""
-    return {resource: float(hub.devices[resource].params["delay"])
-            for resource, hub in config.resources.items() if "delay" in hub.devices[resource].params}
+def emulated_delays(config: StationConfig) -> dict[str, Duration]:
+    """Each device's `delay` in hubs.toml (seconds an effect takes at speed 1, or an interval), where it gives one."""
+    return config.delays
 
 
 def run_in_process(
@@ -61,7 +60,7 @@ def run_in_process(
     speed: float = 1.0,
     seed: int = 0,
     failure: Mapping[str, float] | None = None,
-    delays: Mapping[str, float] | None = None,
+    delays: Mapping[str, Duration | float] | None = None,
     realtime: bool = False,
     time_limit: float = 3600.0,
     report: Reporter | None = None,

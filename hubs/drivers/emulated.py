@@ -24,7 +24,7 @@ import math
 import time
 from collections.abc import Mapping
 
-from common.model import Model, Value
+from common.model import Duration, Model, Value
 
 from ..emulator import EffectEmulator
 from .base import Driver, Inputs, Observes, SelftestReport
@@ -43,7 +43,7 @@ INPUT_WAIT_S = 1.0
 
 class EmulatedDriver(Driver, Inputs, Observes):
     def __init__(self, model: Model, resource: str, *, speed: float = 1.0, seed: int = 0,
-                 failure_probability: float = 0.0, delay: float | None = None,
+                 failure_probability: float = 0.0, delay: Duration | float | None = None,
                  input_wait: float = INPUT_WAIT_S) -> None:
         self.resource = resource
         self.model = model
