@@ -42,6 +42,7 @@ from common.model.durations import effect_delays
 from common.model.predicates import format_value
 from common.wire.ctl import ReplanCause, ReplanReason
 
+from .deorder import Execution, order
 from .planner import Plan
 from .planner.steps import RaceCheck
 
@@ -54,48 +55,21 @@ HOLD_BOUND_FACTOR = 2.0
 class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
-    def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None) -> None:
-        """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause)."""
+    def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None,
+                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
+        """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
+        `execution`: how steps wait for each other (the trace only for the cycle benchmark's "before")."""
         self.plan = plan
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
-        self.post: list[tuple[tuple[int, Value], ...]] = []
-        self.depends: list[frozenset[int]] = []
-        self.prior_writers: list[frozenset[int]] = []  # the last earlier step writing each variable it writes
+        self.post: list[tuple[tuple[int, Value], ...]] = [
+            tuple((i, plan.states[j + 1][i]) for i in sorted(t.writes)) for j, t in enumerate(self.transitions)]
+        self.ordering = order(compiled, plan, execution)
+        self.depends = self.ordering.depends
+        self.prior_writers = self.ordering.prior_writers
         # Earlier automatic and effect steps that must see the old values of what a step writes.
-        self.observers_before: list[frozenset[int]] = []
-        last_writer: dict[int, int] = {}
-        readers_since_write: dict[int, list[int]] = {}
-        # A command sets its device going: the device's measured state changes later, by effects the
-        # plan lists further on. So a deliberate step waits for every earlier step that reads the
-        # device (the tracking that records the frame lifted while the robot stands at the frame),
-        # not only for those that read what the step itself writes.
-        readers_of_resource: dict[str, list[int]] = {}
-        resource_of = [path.split(".", 1)[0] for path in compiled.paths]
+        self.observers_before = self.ordering.observers_before
         relevant: set[int] = set()
-        for j, t in enumerate(self.transitions):
-            after = plan.states[j + 1]
-            self.post.append(tuple((i, after[i]) for i in sorted(t.writes)))
-            deps: set[int] = set()
-            for i in t.reads | t.writes:
-                if i in last_writer:
-                    deps.add(last_writer[i])
-            if t.kind is TransitionKind.DELIBERATE:
-                for resource in {resource_of[i] for i in t.writes}:
-                    deps.update(readers_of_resource.get(resource, ()))
-            for resource in {resource_of[i] for i in t.reads}:
-                readers_of_resource.setdefault(resource, []).append(j)
-            self.prior_writers.append(frozenset(last_writer[i] for i in t.writes if i in last_writer))
-            self.observers_before.append(frozenset(
-                k for i in t.writes for k in readers_since_write.get(i, ())
-                if self.transitions[k].kind is not TransitionKind.DELIBERATE))
-            for i in t.writes:
-                deps.update(readers_since_write.get(i, ()))
-                readers_since_write[i] = []
-                last_writer[i] = j
-            for i in t.reads - t.writes:
-                readers_since_write.setdefault(i, []).append(j)
-            deps.discard(j)
-            self.depends.append(frozenset(deps))
+        for t in self.transitions:
             relevant |= t.reads | t.writes
         self.relevant = tuple(sorted(relevant))
         self.expected: dict[int, Value] = {i: plan.states[0][i] for i in self.relevant}
@@ -110,6 +84,11 @@ class PlanProgress:
 
     def ready(self, j: int) -> bool:
         return j not in self.done and self.depends[j] <= self.done
+
+    def blocked_for_good(self, j: int) -> bool:
+        """Step j's guard fails although every step the former trace rule made it wait for is done: no step
+        the partial order let it overtake can still make it hold (see the module docstring)."""
+        return self.ordering.trace[j] <= self.done
 
     def mark_done(self, j: int) -> None:
         self.done.add(j)
@@ -221,10 +200,13 @@ class TickResult:
 
 
 class Engine:
-    def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None) -> None:
+    def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None,
+                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
         """`delays`: seconds each effect takes, by effect transition name (default: the model's,
-        common/model/durations.py); they bound how long a step is held for a due effect."""
+        common/model/durations.py); they bound how long a step is held for a due effect. `execution`:
+        how the plans this engine follows are ordered (`PlanProgress`)."""
         self.compiled = compiled
+        self.execution = execution
         self.races = RaceCheck(compiled)  # every resource's effects: a disabled device may still act
         self.delays = dict(delays) if delays is not None else effect_delays(compiled.model)
         model = compiled.model
@@ -338,8 +320,10 @@ class Engine:
                     if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
                         continue
                     if not t.guard(state):
-                        result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
-                        break
+                        if progress.blocked_for_good(j):
+                            result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
+                            break
+                        continue  # a step it may run beside (a supervisor's guard) still has to move on
                     if self._hold(result, progress, j, state, now):
                         if result.replan is not None:
                             break
