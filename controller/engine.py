@@ -42,6 +42,7 @@ from common.model.durations import effect_delays
 from common.model.predicates import format_value
 from common.wire.ctl import ReplanCause, ReplanReason
 
+from .cycle import Waited, WaitKind
 from .deorder import Execution, order
 from .planner import Plan
 from .planner.steps import RaceCheck
@@ -74,6 +75,9 @@ class PlanProgress:
         self.relevant = tuple(sorted(relevant))
         self.expected: dict[int, Value] = {i: plan.states[0][i] for i in self.relevant}
         self.done: set[int] = set()
+        self.done_at: dict[int, float] = {}  # when each step was fired or observed (the tick's clock)
+        self.ready_at: dict[int, float] = {}  # deliberate steps: when their dependencies were first all done
+        self.guard_waits: set[int] = set()  # deliberate steps that waited, ready, for their guard
         self.held_since: dict[int, float] = {}  # deliberate steps held for a due effect, since when
         self.due: dict[int, State] = {}  # effect steps next in line, the last state where their guard held
         self.sent: dict[str, str] = {} if sent is None else sent  # resource -> the last command or automatic on it
@@ -90,8 +94,10 @@ class PlanProgress:
         the partial order let it overtake can still make it hold (see the module docstring)."""
         return self.ordering.trace[j] <= self.done
 
-    def mark_done(self, j: int) -> None:
+    def mark_done(self, j: int, now: float | None = None) -> None:
         self.done.add(j)
+        if now is not None:
+            self.done_at[j] = now
         for i, value in self.post[j]:
             self.expected[i] = value
 
@@ -156,6 +162,25 @@ class PlanProgress:
         became = ", ".join(f"{compiled.paths[i]} never became {format_value(v)}" for i, v in self.post[j])
         return f"{became or 'nothing changed'} ({self.transitions[j].name})"
 
+    def waited_for(self, compiled: CompiledModel, j: int, now: float) -> Waited:
+        """What deliberate step j, dispatched now, waited for last: its guard (a specification or the model's
+        own), a due effect (a race hold), or the resource whose step was the last it depended on."""
+        ready = self.ready_at.get(j, now)
+        if ready < now:
+            step = self.plan.steps[j]
+            if j in self.held_since:
+                return Waited(WaitKind.RACE_HOLD, step.transition)
+            if j in self.guard_waits:
+                held_by = ", ".join(step.held_by)
+                return Waited(WaitKind.SPECIFICATION if held_by else WaitKind.GUARD, held_by or step.transition)
+        timed = [d for d in self.depends[j] if d in self.done_at]
+        if not timed:
+            return Waited(WaitKind.PLAN, "")
+        last = max(timed, key=lambda d: (self.done_at[d], d))
+        t = self.transitions[last]
+        owner = compiled.paths[min(t.writes)].split(".", 1)[0] if t.writes else ""
+        return Waited(WaitKind.RESOURCE, owner)
+
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
         differing = [i for i in self.relevant if state[i] != self.expected[i]]
         if not differing:
@@ -163,6 +188,16 @@ class PlanProgress:
         shown = "; ".join(f"{compiled.paths[i]} is {state[i]!r}, expected {self.expected[i]!r}" for i in differing[:4])
         more = f" and {len(differing) - 4} more" if len(differing) > 4 else ""
         return f"{shown}{more} (after {len(self.done)} of {len(self.transitions)} steps)"
+
+
+@dataclass(frozen=True)
+class Dispatched:
+    """A plan step fired at this tick: a command to a resource, and what it had waited for."""
+
+    step: int
+    transition: str
+    resources: frozenset[str]  # the resources whose commands it wrote
+    waited: Waited
 
 
 @dataclass(frozen=True)
@@ -197,6 +232,7 @@ class TickResult:
     replan: ReplanCause | None = None  # why the current plan cannot be followed
     held: list[HeldStep] = field(default_factory=list)
     lost: LostEffect | None = None  # with `replan`: the effect whose loss took the state off the plan
+    dispatched: list[Dispatched] = field(default_factory=list)  # the plan's commands fired
 
 
 class Engine:
@@ -307,7 +343,7 @@ class Engine:
             for t in fired:
                 progress.note_sent(self.compiled, t, None)
             while True:
-                self._observe(progress, state)
+                self._observe(progress, state, now)
                 deviation = progress.deviation(self.compiled, state)
                 if deviation is not None:
                     result.replan = ReplanCause(ReplanReason.LEFT_PLAN, deviation)
@@ -319,7 +355,10 @@ class Engine:
                     t = progress.transitions[j]
                     if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
                         continue
+                    if now is not None:
+                        progress.ready_at.setdefault(j, now)
                     if not t.guard(state):
+                        progress.guard_waits.add(j)
                         if progress.blocked_for_good(j):
                             result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
                             break
@@ -330,7 +369,11 @@ class Engine:
                         continue
                     state = t.outcomes[0](state)
                     result.fired.append(t.name)
-                    progress.mark_done(j)
+                    if now is not None:
+                        written = frozenset(self.compiled.paths[i].split(".", 1)[0] for i in t.writes)
+                        waited = progress.waited_for(self.compiled, j, now)
+                        result.dispatched.append(Dispatched(j, t.name, written, waited))
+                    progress.mark_done(j, now)
                     progress.note_sent(self.compiled, t, j)
                     state, autos = self.compiled.close(state, held)
                     result.fired += [a.name for a in autos]
@@ -368,7 +411,7 @@ class Engine:
         return True
 
     @staticmethod
-    def _observe(progress: PlanProgress, state: State) -> None:
+    def _observe(progress: PlanProgress, state: State, now: float | None = None) -> None:
         """Mark effect and automatic steps done once their predecessors are done and their result shows."""
         changed = True
         while changed:
@@ -378,5 +421,5 @@ class Engine:
                 if t.kind is TransitionKind.DELIBERATE or not progress.observed(j, state):
                     continue
                 if progress.ready(j) or progress.early(j, state):
-                    progress.mark_done(j)
+                    progress.mark_done(j, now)
                     changed = True

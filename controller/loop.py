@@ -24,6 +24,7 @@ from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
 from .control import ControlCore, PlanRequest
+from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predicted_finish, step_seconds
 from .engine import TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
@@ -51,10 +52,13 @@ class Adopted:
 
 class ControlLoop:
     def __init__(self, core: ControlCore, recorder: RunRecorder, commanded: Iterable[str],
-                 clock: Callable[[], float]) -> None:
+                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
-        `clock`: read as each step begins."""
+        `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
+        the model's), for the plans' predicted finish and bound."""
         self.core = core
+        self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
+        self.cycle = CycleRecord([r.name for r in core.model.resources])
         self.recorder = recorder
         self.clock = clock
         model, index = core.model, core.compiled.index
@@ -73,6 +77,8 @@ class ControlLoop:
         self.clock()
         changed = self.core.ingest(measured) if measured else {}
         self.recorder.ingested(changed, hub_states)
+        if changed:
+            self.cycle.measured(self.core.clock(), {path.split(".", 1)[0] for path in changed})
         return changed
 
     def liveliness(self, hub: str, alive: bool) -> None:
@@ -95,6 +101,8 @@ class ControlLoop:
         core.set_disabled(frozenset(unhealthy) | held)
         result = core.tick()
         self.recorder.ticked(unhealthy)
+        for dispatched in result.dispatched:
+            self.cycle.dispatched(core.clock(), dispatched.resources, dispatched.waited)
         return Ticked(result, self._recorded(self.outbox.changed(core.state, held)))
 
     def resend(self, held: frozenset[str] = NOT_HELD, resources: Iterable[str] | None = None) -> list[Command]:
@@ -126,17 +134,35 @@ class ControlLoop:
         cursor = log.total
         taken = self.core.adopt(request, result)
         self.recorder.plan(request, result, taken=taken, note=note)
+        if taken:
+            self._estimate()
         return Adopted(taken, log.since(cursor).events)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
         """A shorter plan for `request`, after its first answer; True if taken."""
         taken = self.core.improve(request, better)
         self.recorder.plan(request, better, taken=taken, improvement=True)
+        if taken:
+            self._estimate()
         return taken
 
     def solve(self, request: PlanRequest) -> Adopted:
         """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds)."""
         return self.adopt(request, self.core.solve(request))
+
+    def _estimate(self) -> None:
+        """The predicted finish and the bound of the plan just taken (what is left of it, from now)."""
+        progress = self.core.progress
+        if progress is None:
+            return
+        compiled = self.core.compiled
+        durations = step_seconds(compiled, progress.plan, self.seconds)
+        self.cycle.planned(self.core.clock(), predicted_finish(progress.ordering, durations),
+                           lower_bound(compiled, progress.plan, progress.ordering, durations))
+
+    def cycle_report(self) -> CycleReport:
+        """Cycle time so far, the bound, and each resource's idle time with what it waited for."""
+        return self.cycle.report(self.core.clock())
 
     # --- the end ------------------------------------------------------------------------
     def finish(self, outcome: RunOutcome, note: str = "") -> None:

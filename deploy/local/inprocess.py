@@ -17,6 +17,7 @@ from common.config.hubs_toml import StationConfig
 from common.model import Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
+from controller.cycle import CycleReport, effect_seconds
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
@@ -42,6 +43,7 @@ class RunSummary:
     wall_seconds: float
     planning_seconds: float
     reason: str = ""
+    cycle: CycleReport | None = None  # cycle time, the bound, each resource's idle time
     log: list[str] = field(default_factory=list)  # the event log (its newest entries), as text
 
     @property
@@ -77,7 +79,8 @@ def run_in_process(
     compiled = stack.compiled
     clock = VirtualClock()
     core = stack.control_core(clock, budget=budget)
-    loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock)
+    loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
+                       effect_seconds(model, delays))
     loop.request([op.name for op in model.operations])
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure,
                               delays=delays)
@@ -139,6 +142,9 @@ def run_in_process(
             reason = f"time limit of {time_limit} emulated seconds reached"
             break
     loop.finish(outcome, reason)
+    cycle = loop.cycle_report()
+    for line in cycle.lines():
+        say(line)
     events = core.events
     return RunSummary(
         outcome=outcome,
@@ -152,5 +158,6 @@ def run_in_process(
         wall_seconds=time.perf_counter() - start_wall,
         planning_seconds=planning,
         reason=reason,
+        cycle=cycle,
         log=[event.text for event in events.log],
     )
