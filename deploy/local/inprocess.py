@@ -18,6 +18,7 @@ from common.model import Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
 from controller.cycle import CycleReport, effect_seconds
+from controller.deorder import Execution
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
@@ -69,6 +70,7 @@ def run_in_process(
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
+    execution: Execution = Execution.PARTIAL_ORDER,
 ) -> RunSummary:
     """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
     type's default elsewhere); `time_limit`: emulated seconds; `recording`: where the run is recorded
@@ -79,6 +81,7 @@ def run_in_process(
     compiled = stack.compiled
     clock = VirtualClock()
     core = stack.control_core(clock, budget=budget)
+    core.engine.execution = execution  # the trace only for the cycle benchmark's "before"
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
                        effect_seconds(model, delays))
     loop.request([op.name for op in model.operations])
