@@ -14,12 +14,21 @@ Stage 1 then runs again (with the automatics its actions enable) until it change
 nothing: what stage 2 recorded may finish an operation or let a requested one start,
 and the tick leaves no operation waiting for a state change that nothing will cause.
 
-A plan is a shortest *sequence*, but it is executed as a trace: step j waits only
-for the earlier steps it conflicts with (one writes what the other reads or writes).
-Independent resources (the robot and the operator) therefore run in parallel while
-every dependent step keeps the plan's order. The state must stay on the plan's
-predicted trace; when it leaves it, or when the next step can no longer fire, the
-tick asks for a replan with the reason.
+A plan is a shortest *sequence*, executed as a **partial order** (controller/deorder.py): a step
+waits for the producers of what its guard needs, the earlier writers of what it writes, and the
+consumers whose causal links it would break (threats); the operator mounts filters while the robot
+tightens bolts. Safety does not rest on the order: a command fires only where its guard, the
+supervisor's synthesized guard included, holds on the measured state at dispatch, so no forbidden
+state is ever commanded. A step whose dependencies are done but whose guard fails waits; it asks for
+a replan (STEP_BLOCKED) only once every step the former trace rule made it wait for is done. Every
+dependency of either kind points to an earlier step of the sequence, so the earliest pending step
+always has all of them done: it fires, is held for a due effect (bounded), or asks for a replan. No
+deadlock. No needed effect is skipped silently: the values the engine expects are the last done
+writers' (writers of one variable stay in order), and a step that overtook one whose condition it
+took away (a threat the deordering judged wrongly) shows as a deviation from the expected values,
+which asks for a replan with the reason, as a late effect does. The state must stay on the plan's
+predicted values; when it leaves them, or when the next step can no longer fire, the tick asks for a
+replan with the reason.
 
 Effects take the time they take, and the measured state may be ahead of the plan's order: an
 effect the plan lists after a command can already be due when the command is to be sent (the
