@@ -429,7 +429,7 @@ class ControlCore:
 
     def _follow(self, plan: Plan) -> None:
         # What last set each device going is kept from plan to plan, so that a lost effect names its cause.
-        self.progress = PlanProgress(self.compiled, plan, self._sent)
+        self.progress = PlanProgress(self.compiled, plan, self._sent, self.engine.execution)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
         """A shorter plan for the request whose plan is under way (the portfolio kept searching): taken

@@ -14,12 +14,21 @@ Stage 1 then runs again (with the automatics its actions enable) until it change
 nothing: what stage 2 recorded may finish an operation or let a requested one start,
 and the tick leaves no operation waiting for a state change that nothing will cause.
 
-A plan is a shortest *sequence*, but it is executed as a trace: step j waits only
-for the earlier steps it conflicts with (one writes what the other reads or writes).
-Independent resources (the robot and the operator) therefore run in parallel while
-every dependent step keeps the plan's order. The state must stay on the plan's
-predicted trace; when it leaves it, or when the next step can no longer fire, the
-tick asks for a replan with the reason.
+A plan is a shortest *sequence*, executed as a **partial order** (controller/deorder.py): a step
+waits for the producers of what its guard needs, the earlier writers of what it writes, and the
+consumers whose causal links it would break (threats); the operator mounts filters while the robot
+tightens bolts. Safety does not rest on the order: a command fires only where its guard, the
+supervisor's synthesized guard included, holds on the measured state at dispatch, so no forbidden
+state is ever commanded. A step whose dependencies are done but whose guard fails waits; it asks for
+a replan (STEP_BLOCKED) only once every step the former trace rule made it wait for is done. Every
+dependency of either kind points to an earlier step of the sequence, so the earliest pending step
+always has all of them done: it fires, is held for a due effect (bounded), or asks for a replan. No
+deadlock. No needed effect is skipped silently: the values the engine expects are the last done
+writers' (writers of one variable stay in order), and a step that overtook one whose condition it
+took away (a threat the deordering judged wrongly) shows as a deviation from the expected values,
+which asks for a replan with the reason, as a late effect does. The state must stay on the plan's
+predicted values; when it leaves them, or when the next step can no longer fire, the tick asks for a
+replan with the reason.
 
 Effects take the time they take, and the measured state may be ahead of the plan's order: an
 effect the plan lists after a command can already be due when the command is to be sent (the
@@ -42,6 +51,8 @@ from common.model.durations import effect_delays
 from common.model.predicates import format_value
 from common.wire.ctl import ReplanCause, ReplanReason
 
+from .cycle import Waited, WaitKind
+from .deorder import Execution, order
 from .planner import Plan
 from .planner.steps import RaceCheck
 
@@ -54,52 +65,28 @@ HOLD_BOUND_FACTOR = 2.0
 class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
-    def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None) -> None:
-        """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause)."""
+    def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None,
+                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
+        """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
+        `execution`: how steps wait for each other (the trace only for the cycle benchmark's "before")."""
         self.plan = plan
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
-        self.post: list[tuple[tuple[int, Value], ...]] = []
-        self.depends: list[frozenset[int]] = []
-        self.prior_writers: list[frozenset[int]] = []  # the last earlier step writing each variable it writes
+        self.post: list[tuple[tuple[int, Value], ...]] = [
+            tuple((i, plan.states[j + 1][i]) for i in sorted(t.writes)) for j, t in enumerate(self.transitions)]
+        self.ordering = order(compiled, plan, execution)
+        self.depends = self.ordering.depends
+        self.prior_writers = self.ordering.prior_writers
         # Earlier automatic and effect steps that must see the old values of what a step writes.
-        self.observers_before: list[frozenset[int]] = []
-        last_writer: dict[int, int] = {}
-        readers_since_write: dict[int, list[int]] = {}
-        # A command sets its device going: the device's measured state changes later, by effects the
-        # plan lists further on. So a deliberate step waits for every earlier step that reads the
-        # device (the tracking that records the frame lifted while the robot stands at the frame),
-        # not only for those that read what the step itself writes.
-        readers_of_resource: dict[str, list[int]] = {}
-        resource_of = [path.split(".", 1)[0] for path in compiled.paths]
+        self.observers_before = self.ordering.observers_before
         relevant: set[int] = set()
-        for j, t in enumerate(self.transitions):
-            after = plan.states[j + 1]
-            self.post.append(tuple((i, after[i]) for i in sorted(t.writes)))
-            deps: set[int] = set()
-            for i in t.reads | t.writes:
-                if i in last_writer:
-                    deps.add(last_writer[i])
-            if t.kind is TransitionKind.DELIBERATE:
-                for resource in {resource_of[i] for i in t.writes}:
-                    deps.update(readers_of_resource.get(resource, ()))
-            for resource in {resource_of[i] for i in t.reads}:
-                readers_of_resource.setdefault(resource, []).append(j)
-            self.prior_writers.append(frozenset(last_writer[i] for i in t.writes if i in last_writer))
-            self.observers_before.append(frozenset(
-                k for i in t.writes for k in readers_since_write.get(i, ())
-                if self.transitions[k].kind is not TransitionKind.DELIBERATE))
-            for i in t.writes:
-                deps.update(readers_since_write.get(i, ()))
-                readers_since_write[i] = []
-                last_writer[i] = j
-            for i in t.reads - t.writes:
-                readers_since_write.setdefault(i, []).append(j)
-            deps.discard(j)
-            self.depends.append(frozenset(deps))
+        for t in self.transitions:
             relevant |= t.reads | t.writes
         self.relevant = tuple(sorted(relevant))
         self.expected: dict[int, Value] = {i: plan.states[0][i] for i in self.relevant}
         self.done: set[int] = set()
+        self.done_at: dict[int, float] = {}  # when each step was fired or observed (the tick's clock)
+        self.ready_at: dict[int, float] = {}  # deliberate steps: when their dependencies were first all done
+        self.guard_waits: set[int] = set()  # deliberate steps that waited, ready, for their guard
         self.held_since: dict[int, float] = {}  # deliberate steps held for a due effect, since when
         self.due: dict[int, State] = {}  # effect steps next in line, the last state where their guard held
         self.sent: dict[str, str] = {} if sent is None else sent  # resource -> the last command or automatic on it
@@ -111,8 +98,15 @@ class PlanProgress:
     def ready(self, j: int) -> bool:
         return j not in self.done and self.depends[j] <= self.done
 
-    def mark_done(self, j: int) -> None:
+    def blocked_for_good(self, j: int) -> bool:
+        """Step j's guard fails although every step the former trace rule made it wait for is done: no step
+        the partial order let it overtake can still make it hold (see the module docstring)."""
+        return self.ordering.trace[j] <= self.done
+
+    def mark_done(self, j: int, now: float | None = None) -> None:
         self.done.add(j)
+        if now is not None:
+            self.done_at[j] = now
         for i, value in self.post[j]:
             self.expected[i] = value
 
@@ -177,6 +171,25 @@ class PlanProgress:
         became = ", ".join(f"{compiled.paths[i]} never became {format_value(v)}" for i, v in self.post[j])
         return f"{became or 'nothing changed'} ({self.transitions[j].name})"
 
+    def waited_for(self, compiled: CompiledModel, j: int, now: float) -> Waited:
+        """What deliberate step j, dispatched now, waited for last: its guard (a specification or the model's
+        own), a due effect (a race hold), or the resource whose step was the last it depended on."""
+        ready = self.ready_at.get(j, now)
+        if ready < now:
+            step = self.plan.steps[j]
+            if j in self.held_since:
+                return Waited(WaitKind.RACE_HOLD, step.transition)
+            if j in self.guard_waits:
+                held_by = ", ".join(step.held_by)
+                return Waited(WaitKind.SPECIFICATION if held_by else WaitKind.GUARD, held_by or step.transition)
+        timed = [d for d in self.depends[j] if d in self.done_at]
+        if not timed:
+            return Waited(WaitKind.PLAN, "")
+        last = max(timed, key=lambda d: (self.done_at[d], d))
+        t = self.transitions[last]
+        owner = compiled.paths[min(t.writes)].split(".", 1)[0] if t.writes else ""
+        return Waited(WaitKind.RESOURCE, owner)
+
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
         differing = [i for i in self.relevant if state[i] != self.expected[i]]
         if not differing:
@@ -184,6 +197,16 @@ class PlanProgress:
         shown = "; ".join(f"{compiled.paths[i]} is {state[i]!r}, expected {self.expected[i]!r}" for i in differing[:4])
         more = f" and {len(differing) - 4} more" if len(differing) > 4 else ""
         return f"{shown}{more} (after {len(self.done)} of {len(self.transitions)} steps)"
+
+
+@dataclass(frozen=True)
+class Dispatched:
+    """A plan step fired at this tick: a command to a resource, and what it had waited for."""
+
+    step: int
+    transition: str
+    resources: frozenset[str]  # the resources whose commands it wrote
+    waited: Waited
 
 
 @dataclass(frozen=True)
@@ -218,13 +241,17 @@ class TickResult:
     replan: ReplanCause | None = None  # why the current plan cannot be followed
     held: list[HeldStep] = field(default_factory=list)
     lost: LostEffect | None = None  # with `replan`: the effect whose loss took the state off the plan
+    dispatched: list[Dispatched] = field(default_factory=list)  # the plan's commands fired
 
 
 class Engine:
-    def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None) -> None:
+    def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None,
+                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
         """`delays`: seconds each effect takes, by effect transition name (default: the model's,
-        common/model/durations.py); they bound how long a step is held for a due effect."""
+        common/model/durations.py); they bound how long a step is held for a due effect. `execution`:
+        how the plans this engine follows are ordered (`PlanProgress`)."""
         self.compiled = compiled
+        self.execution = execution
         self.races = RaceCheck(compiled)  # every resource's effects: a disabled device may still act
         self.delays = dict(delays) if delays is not None else effect_delays(compiled.model)
         model = compiled.model
@@ -325,7 +352,7 @@ class Engine:
             for t in fired:
                 progress.note_sent(self.compiled, t, None)
             while True:
-                self._observe(progress, state)
+                self._observe(progress, state, now)
                 deviation = progress.deviation(self.compiled, state)
                 if deviation is not None:
                     result.replan = ReplanCause(ReplanReason.LEFT_PLAN, deviation)
@@ -337,16 +364,25 @@ class Engine:
                     t = progress.transitions[j]
                     if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
                         continue
+                    if now is not None:
+                        progress.ready_at.setdefault(j, now)
                     if not t.guard(state):
-                        result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
-                        break
+                        progress.guard_waits.add(j)
+                        if progress.blocked_for_good(j):
+                            result.replan = ReplanCause(ReplanReason.STEP_BLOCKED, str(progress.plan.steps[j]))
+                            break
+                        continue  # a step it may run beside (a supervisor's guard) still has to move on
                     if self._hold(result, progress, j, state, now):
                         if result.replan is not None:
                             break
                         continue
                     state = t.outcomes[0](state)
                     result.fired.append(t.name)
-                    progress.mark_done(j)
+                    if now is not None:
+                        written = frozenset(self.compiled.paths[i].split(".", 1)[0] for i in t.writes)
+                        waited = progress.waited_for(self.compiled, j, now)
+                        result.dispatched.append(Dispatched(j, t.name, written, waited))
+                    progress.mark_done(j, now)
                     progress.note_sent(self.compiled, t, j)
                     state, autos = self.compiled.close(state, held)
                     result.fired += [a.name for a in autos]
@@ -384,7 +420,7 @@ class Engine:
         return True
 
     @staticmethod
-    def _observe(progress: PlanProgress, state: State) -> None:
+    def _observe(progress: PlanProgress, state: State, now: float | None = None) -> None:
         """Mark effect and automatic steps done once their predecessors are done and their result shows."""
         changed = True
         while changed:
@@ -394,5 +430,5 @@ class Engine:
                 if t.kind is TransitionKind.DELIBERATE or not progress.observed(j, state):
                     continue
                 if progress.ready(j) or progress.early(j, state):
-                    progress.mark_done(j)
+                    progress.mark_done(j, now)
                     changed = True

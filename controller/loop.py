@@ -18,13 +18,15 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from common.model import Value
+from common.model import TransitionKind, Value
+from common.model.durations import effect_owner
 from common.wire.ctl import ConsoleReply, ConsoleRequest, Event, HubAlive, HubGone, PlannedAlone
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
 from .control import ControlCore, PlanRequest
-from .engine import TickResult
+from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predicted_finish, step_seconds
+from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
 from .recording.schema import RunOutcome
@@ -51,10 +53,16 @@ class Adopted:
 
 class ControlLoop:
     def __init__(self, core: ControlCore, recorder: RunRecorder, commanded: Iterable[str],
-                 clock: Callable[[], float]) -> None:
+                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
-        `clock`: read as each step begins."""
+        `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
+        the model's), for the plans' predicted finish and bound."""
         self.core = core
+        self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
+        self.cycle = CycleRecord([r.name for r in core.model.resources])
+        self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
+        self._counted_steps: set[int] = set()
+        self._step_seconds: list[float] = []
         self.recorder = recorder
         self.clock = clock
         model, index = core.model, core.compiled.index
@@ -73,6 +81,8 @@ class ControlLoop:
         self.clock()
         changed = self.core.ingest(measured) if measured else {}
         self.recorder.ingested(changed, hub_states)
+        if changed:
+            self.cycle.measured(self.core.clock(), {path.split(".", 1)[0] for path in changed})
         return changed
 
     def liveliness(self, hub: str, alive: bool) -> None:
@@ -95,6 +105,9 @@ class ControlLoop:
         core.set_disabled(frozenset(unhealthy) | held)
         result = core.tick()
         self.recorder.ticked(unhealthy)
+        for dispatched in result.dispatched:
+            self.cycle.dispatched(core.clock(), dispatched.resources, dispatched.waited)
+        self._count_effects()
         return Ticked(result, self._recorded(self.outbox.changed(core.state, held)))
 
     def resend(self, held: frozenset[str] = NOT_HELD, resources: Iterable[str] | None = None) -> list[Command]:
@@ -126,17 +139,49 @@ class ControlLoop:
         cursor = log.total
         taken = self.core.adopt(request, result)
         self.recorder.plan(request, result, taken=taken, note=note)
+        if taken:
+            self._estimate()
         return Adopted(taken, log.since(cursor).events)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
         """A shorter plan for `request`, after its first answer; True if taken."""
         taken = self.core.improve(request, better)
         self.recorder.plan(request, better, taken=taken, improvement=True)
+        if taken:
+            self._estimate()
         return taken
 
     def solve(self, request: PlanRequest) -> Adopted:
         """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds)."""
         return self.adopt(request, self.core.solve(request))
+
+    def _estimate(self) -> None:
+        """The predicted finish and the bound of the plan just taken (what is left of it, from now)."""
+        progress = self.core.progress
+        if progress is None:
+            return
+        compiled = self.core.compiled
+        durations = step_seconds(compiled, progress.plan, self.seconds)
+        self.cycle.planned(self.core.clock(), predicted_finish(progress.ordering, durations),
+                           lower_bound(compiled, progress.plan, progress.ordering, durations))
+
+    def _count_effects(self) -> None:
+        """The effects of the plan under way seen happen, each counted once as work of its resource."""
+        progress = self.core.progress
+        if progress is None:
+            return
+        if progress is not self._counted_plan:
+            self._counted_plan, self._counted_steps = progress, set()
+            self._step_seconds = step_seconds(self.core.compiled, progress.plan, self.seconds)
+        for j in progress.done - self._counted_steps:
+            t = progress.transitions[j]
+            if t.kind is TransitionKind.EFFECT:
+                self.cycle.effect_done(effect_owner(t.source), self._step_seconds[j])
+        self._counted_steps |= progress.done
+
+    def cycle_report(self) -> CycleReport:
+        """Cycle time so far, the bound, and each resource's idle time with what it waited for."""
+        return self.cycle.report(self.core.clock())
 
     # --- the end ------------------------------------------------------------------------
     def finish(self, outcome: RunOutcome, note: str = "") -> None:

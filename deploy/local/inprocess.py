@@ -17,6 +17,8 @@ from common.config.hubs_toml import StationConfig
 from common.model import Duration, Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.control import VIRTUAL_BUDGET
+from controller.cycle import CycleReport, effect_seconds
+from controller.deorder import Execution
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
@@ -42,6 +44,7 @@ class RunSummary:
     wall_seconds: float
     planning_seconds: float
     reason: str = ""
+    cycle: CycleReport | None = None  # cycle time, the bound, each resource's idle time
     log: list[str] = field(default_factory=list)  # the event log (its newest entries), as text
 
     @property
@@ -66,6 +69,7 @@ def run_in_process(
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
+    execution: Execution = Execution.PARTIAL_ORDER,
 ) -> RunSummary:
     """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
     type's default elsewhere); `time_limit`: emulated seconds; `recording`: where the run is recorded
@@ -76,7 +80,9 @@ def run_in_process(
     compiled = stack.compiled
     clock = VirtualClock()
     core = stack.control_core(clock, budget=budget)
-    loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock)
+    core.engine.execution = execution  # the trace only for the cycle benchmark's "before"
+    loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
+                       effect_seconds(model, delays))
     loop.request([op.name for op in model.operations])
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure,
                               delays=delays)
@@ -138,6 +144,9 @@ def run_in_process(
             reason = f"time limit of {time_limit} emulated seconds reached"
             break
     loop.finish(outcome, reason)
+    cycle = loop.cycle_report()
+    for line in cycle.lines():
+        say(line)
     events = core.events
     return RunSummary(
         outcome=outcome,
@@ -151,5 +160,6 @@ def run_in_process(
         wall_seconds=time.perf_counter() - start_wall,
         planning_seconds=planning,
         reason=reason,
+        cycle=cycle,
         log=[event.text for event in events.log],
     )
