@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from common.model import Value
-from common.wire.ctl import ConsoleReply, ConsoleRequest, Event, HubAlive, HubGone, PlannedAlone
+from common.wire.ctl import ConsoleEvent, ConsoleReply, ConsoleRequest, HubAlive, HubGone, PlannedAlone
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
@@ -46,7 +46,7 @@ class Adopted:
     """A plan answer handed to the core: whether it was taken, and the events the core logged for it."""
 
     taken: bool
-    events: list[Event]
+    events: list[ConsoleEvent]
 
 
 class ControlLoop:
