@@ -213,7 +213,10 @@ class ControlCore:
 
     # --- queries ------------------------------------------------------------------------
     def op_state(self, name: str) -> OperationState:
-        return OperationState(self.state[self.op_index[name]])
+        value = self.state[self.op_index[name]]
+        # An operation's variable has the domain OPERATION_STATES: always one of its strings.
+        assert isinstance(value, str), f"op.{name} holds {value!r}"
+        return OperationState(value)
 
     def executing(self) -> list[str]:
         return [n for n, i in self.op_index.items() if self.state[i] in RUNNING]

@@ -30,13 +30,13 @@ from dataclasses import dataclass
 
 from common.model import Model, TransitionKind, parse_predicate
 from common.model.compiled import CompiledModel
-from common.model.durations import effect_delays, effect_owner
+from common.model.durations import Duration, effect_delays, effect_owner
 
 from .deorder import Ordering
 from .planner import Plan
 
 
-def effect_seconds(model: Model, overrides: Mapping[str, float] | None = None) -> dict[str, float]:
+def effect_seconds(model: Model, overrides: Mapping[str, Duration | float] | None = None) -> dict[str, float]:
     """Seconds each effect transition takes, by name: the durations table, read here only."""
     return effect_delays(model, overrides)
 

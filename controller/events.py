@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import islice
 
-from common.wire.ctl import Event
+from common.wire.ctl import ConsoleEvent
 
 EVENT_LOG_BOUND = 1000  # events held: a status shows the last 20, the recording reads after every step
 
@@ -23,7 +23,7 @@ EVENT_LOG_BOUND = 1000  # events held: a status shows the last 20, the recording
 class EventsSince:
     """The events after a cursor, oldest first, and the cursor to read on from."""
 
-    events: list[Event]
+    events: list[ConsoleEvent]
     cursor: int
     missed: int = 0  # events after the old cursor the bound dropped before they were read
 
@@ -32,11 +32,11 @@ class EventLog:
     def __init__(self, bound: int = EVENT_LOG_BOUND) -> None:
         if bound < 1:
             raise ValueError(f"an event log holds at least one event, not {bound}")
-        self._held: deque[Event] = deque(maxlen=bound)
+        self._held: deque[ConsoleEvent] = deque(maxlen=bound)
         self.total = 0  # events emitted since the start, dropped ones included: the newest cursor
         self.faults = 0  # of which faults (`Event.fault`), for the run's summary
 
-    def emit(self, event: Event) -> None:
+    def emit(self, event: ConsoleEvent) -> None:
         self._held.append(event)
         self.total += 1
         if event.fault:
@@ -48,16 +48,16 @@ class EventLog:
         held = min(new, len(self._held))
         return EventsSince(self._newest(held), self.total, new - held)
 
-    def recent(self, count: int) -> list[Event]:
+    def recent(self, count: int) -> list[ConsoleEvent]:
         """The newest `count` events held, oldest first."""
         return self._newest(min(max(0, count), len(self._held)))
 
-    def _newest(self, count: int) -> list[Event]:
+    def _newest(self, count: int) -> list[ConsoleEvent]:
         # From the newest end: a reader that is up to date copies nothing of the whole log.
         newest = list(islice(reversed(self._held), count))
         newest.reverse()
         return newest
 
-    def __iter__(self) -> Iterator[Event]:
+    def __iter__(self) -> Iterator[ConsoleEvent]:
         """The events held, oldest first."""
         return iter(self._held)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from common.model import TransitionKind, Value
 from common.model.durations import effect_owner
-from common.wire.ctl import ConsoleReply, ConsoleRequest, Event, HubAlive, HubGone, PlannedAlone
+from common.wire.ctl import ConsoleEvent, ConsoleReply, ConsoleRequest, HubAlive, HubGone, PlannedAlone
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
@@ -48,7 +48,7 @@ class Adopted:
     """A plan answer handed to the core: whether it was taken, and the events the core logged for it."""
 
     taken: bool
-    events: list[Event]
+    events: list[ConsoleEvent]
 
 
 class ControlLoop:

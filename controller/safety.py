@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from common.model import Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.model.predicates import And, Or, format_value
-from common.wire.ctl import Event, ForbiddenState, ForbiddenStateCleared
+from common.wire.ctl import ForbiddenState, ForbiddenStateCleared
 
 log = logging.getLogger("statehub.controller.safety")
 
@@ -87,10 +87,11 @@ class SafetyMonitor:
                 found.append(Violation(spec.name, witness(spec.forbidden, self.compiled.unpack(state))))
         return found
 
-    def check(self, state: State, unknown: frozenset[int] = frozenset()) -> list[Event]:
+    def check(self, state: State,
+              unknown: frozenset[int] = frozenset()) -> list[ForbiddenState | ForbiddenStateCleared]:
         """Evaluate every specification now; the events of those that began or stopped holding."""
         now = {v.specification: v for v in self.violations(state, unknown)}
-        events: list[Event] = []
+        events: list[ForbiddenState | ForbiddenStateCleared] = []
         for name, violation in now.items():
             if name not in self.holding:
                 log.error("forbidden state: %s holds: deliberate transitions stopped", violation.describe())

@@ -75,8 +75,8 @@ class PlanBook:
         plan, done = known
         progress = self.core.progress
         current = progress is not None and progress.plan is plan
-        if current:
-            done = frozenset(progress.done)  # type: ignore[union-attr]
+        if progress is not None and current:
+            done = frozenset(progress.done)
         steps = [PlanStepInfo(step.transition.split(".", 1)[0], step.transition, step.kind.value,
                               step.guard if j in done or not current else self._waits_for(step), j in done)
                  for j, step in enumerate(plan.steps)]

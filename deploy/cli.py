@@ -194,7 +194,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 
     from .local.inprocess import emulated_delays, run_in_process
 
-    model, station = _in_process_station(args)
+    model, in_process_config = _in_process_station(args)
     if args.orders is not None or args.mix is not None:
         in_process_plan = plan_from_options(args.orders, args.mix, ProductionConfig(), model, "--orders")
         if in_process_plan is not None:
@@ -210,7 +210,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         reference = args.model or (load_config(config).station.model if config else DEFAULT_MODEL)
         recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget)
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None,
-                             delays=emulated_delays(station) if station is not None else None,
+                             delays=emulated_delays(in_process_config) if in_process_config is not None else None,
                              realtime=args.realtime, time_limit=args.time_limit,
                              report=lambda line: print(line, flush=True), budget=budget, recording=recording)
     print()

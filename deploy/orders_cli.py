@@ -12,6 +12,7 @@ import asyncio
 import sys
 
 from common.config.hubs_toml import StationConfig
+from common.config.modes import NetworkMode
 from common.config.production import ProductionPlan, plan_from_options
 from common.model import Model
 from common.wire.orders import Order, OrdersAction, OrdersReply, OrdersRequest, ParameterValue
@@ -105,7 +106,7 @@ def cmd_orders(args: argparse.Namespace) -> int:
 
     station, model = load_station(args.config)
     endpoints = list(args.connect) or list(controller_endpoints(station))
-    network = NetworkConfig(mode="peer", listen=[], connect=endpoints, lease_ms=station.network.lease_ms)
+    network = NetworkConfig(mode=NetworkMode.PEER, listen=[], connect=endpoints, lease_ms=station.network.lease_ms)
     zconfig = station_zenoh_config(station, model, operator_identity(station, args.operator), network,
                                    certs=args.certs)
     request = request_of(args, origin())

@@ -252,8 +252,8 @@ real = 1
     assert lines.line_of(("nowhere",)) is None
 
 
-@pytest.mark.parametrize("mode", ["real", "sim"])
-def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: str) -> None:
+@pytest.mark.parametrize("mode", [DeviceMode.REAL, DeviceMode.SIM])
+def test_every_device_of_the_repository_hubs_toml_builds_its_driver(mode: DeviceMode) -> None:
     """Switching a device to real (or sim) needs no other edit: its driver's parameters are all there."""
     from common.config.hubs_toml import load_station
     from hubs.drivers.base import Driver

@@ -24,7 +24,7 @@ from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.model import Domain, Resource, command, measured
 from common.wire.badpayload import BadPayloads
 from common.wire.holder_token import Holder, declare_holder
-from common.wire.messages import Codec, HubStatus, OversizedPayload
+from common.wire.messages import Codec, CommandMessage, HubStatus, OversizedPayload, StateMessage
 from controller.state import StateStore
 from controller.station_hold import ControllerConflict, StationHold
 from hubs.runtime import ResourceSlot
@@ -124,7 +124,8 @@ def test_payloads_longer_than_any_valid_message_are_refused_before_decoding() ->
     assert len(codec.encode_state(state)) <= codec.max_state_bytes
     assert codec.decode_state(codec.encode_state(state)) == state
     # The bound is exact: with the widest schema number and model hash the struct allows, it is reached.
-    def widest_envelope(message: msgspec.Struct) -> dict[str, object]:
+    def widest_envelope(message: CommandMessage | StateMessage) -> dict[str, object]:
+        assert isinstance(message, msgspec.Struct)  # the resource's generated struct behind the protocol
         return {**msgspec.structs.asdict(message), "schema": 2**63, "model_hash": "\U0010ffff" * 64}
     assert len(msgspec.msgpack.encode(widest_envelope(widest))) == codec.max_command_bytes
     assert len(msgspec.msgpack.encode({**widest_envelope(state), "mirror": widest_envelope(widest)})) \

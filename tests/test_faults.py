@@ -299,7 +299,7 @@ def test_mirror_lag_is_measured_from_the_oldest_command_not_mirrored() -> None:
     lazy.hub_alive("pi-tool", True)
     for seq in range(6):  # a new command every 0.4 s, none mirrored
         lazy.command_sent("nr", seq)
-        lazy.state_received("nr", "ok", "", None)
+        lazy.state_received("nr", HubStatus.OK, "", None)
         reason = lazy.health("nr").reason
         assert (reason == "") == (now[0] <= 1.0), f"at {now[0]:.1f} s: {reason!r}"
         now[0] += 0.4
@@ -310,7 +310,7 @@ def test_mirror_lag_is_measured_from_the_oldest_command_not_mirrored() -> None:
     prompt.hub_alive("pi-tool", True)
     for seq in range(20):  # a new command every 0.4 s, each mirrored 0.8 s after it was sent
         prompt.command_sent("nr", seq)
-        prompt.state_received("nr", "ok", "", seq - 2 if seq >= 2 else None)
+        prompt.state_received("nr", HubStatus.OK, "", seq - 2 if seq >= 2 else None)
         assert prompt.health("nr").healthy, prompt.health("nr").reason
         now[0] += 0.4
 

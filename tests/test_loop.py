@@ -14,7 +14,16 @@ from common.bus.memory_bus import MemoryBus, MemoryHub
 from common.bus.protocol import Sample
 from common.config.hubs_toml import StationConfig, load_station
 from common.model import Duration, Model, Value
-from common.wire.ctl import EVENT_WINDOW, Event, HubGone, PlanFound, ReplanCause, Replanned, ReplanReason, StatusMessage
+from common.wire.ctl import (
+    EVENT_WINDOW,
+    ConsoleEvent,
+    HubGone,
+    PlanFound,
+    ReplanCause,
+    Replanned,
+    ReplanReason,
+    StatusMessage,
+)
 from common.wire.messages import HubStatus
 from controller.events import EventLog
 from controller.outbox import CommandVariable, Outbox
@@ -178,7 +187,7 @@ def test_the_event_log_keeps_its_newest_events_and_a_cursor_reads_what_is_new_an
 
 def test_hubctl_up_counts_the_faults_of_the_whole_run_not_of_the_last_statuss_window() -> None:
     progress = Progress(lambda _line: None, 0)
-    logged: list[Event] = []
+    logged: list[ConsoleEvent] = []
 
     def status(controller: str) -> StatusMessage:
         return StatusMessage(station="s", controller=controller, time=0.0, uptime=0.0,

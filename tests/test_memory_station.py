@@ -43,7 +43,7 @@ WAIT_S = 30.0  # generous bound for a loaded machine; the runs take a few second
 
 
 class LastCommand(NamedTuple):
-    values: dict[str, Value | None]
+    values: dict[str, Value]  # a command has every variable known
     seq: int
     controller: str
 

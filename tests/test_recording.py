@@ -71,7 +71,8 @@ def test_records_are_read_back_in_order_with_their_types_and_filters(tmp_path: P
     w.put(0.5, RecordKind.STATE, "nr", StateRecord(values={"nr.run_m": True}, status=HubStatus.OK, mirror_seq=3))
     w.put(0.5, RecordKind.TICK, "", TickRecord())
     w.put(1.0, RecordKind.EVENT, "hub_gone", HubGone("pi-tool"))
-    w.put(2.0, RecordKind.OPERATION, "Tighten", OperationRecord(before="initial", after="executing"))
+    w.put(2.0, RecordKind.OPERATION, "Tighten",
+          OperationRecord(before=OperationState.INITIAL, after=OperationState.EXECUTING))
     w.update_meta(outcome="finished", operations_done=1)
     w.close()
 

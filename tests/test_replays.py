@@ -18,7 +18,7 @@ from common.config.hubs_toml import RecordingConfig
 from common.stations import load_model
 from controller.recording.hooks import open_recording
 from controller.recording.reader import list_runs, open_run
-from controller.recording.schema import CommandRecord, LivelinessRecord, RecordKind, RunMeta, WatchdogRecord
+from controller.recording.schema import CommandRecord, LivelinessRecord, RecordKind, RunMeta, RunMode, WatchdogRecord
 from controller.recording.writer import RECORDING_DIR_ENV
 from controller.timeline.model import build_timeline
 from deploy.cli import main as hubctl
@@ -41,7 +41,7 @@ def test_saved_run_replays_to_the_same_decisions(path: Path) -> None:
 
 def record_in_process(directory: Path, seed: int = 2) -> Path:
     model = load_model(FAULT_MODEL)
-    meta = RunMeta(station=model.name, model=FAULT_MODEL, mode="in-process", seed=seed,
+    meta = RunMeta(station=model.name, model=FAULT_MODEL, mode=RunMode.IN_PROCESS, seed=seed,
                    budget={"first_expansions": 20_000, "improve_expansions": 0, "symbolic_layers": 500})
     recording = open_recording(RecordingConfig(dir=str(directory)), meta, model)
     assert recording is not None, "the run's recording could not be opened"

@@ -222,7 +222,8 @@ async def test_oversized_and_garbage_floods_neither_stall_nor_bloat_the_hub(tmp_
           f"{1000 * quiet_gap:.1f} ms); RSS {baseline_kb / 1024:.1f} MB before, peak {peak_kb / 1024:.1f} MB")
     assert len(during) > 50 and gap < 0.1 + quiet_gap
     assert peak_kb < RSS_LIMIT_KB
-    assert all(s.mirror is not None and s.mirror.controller == "test-controller" and s.run_m is False for s in during)
+    assert all(s.mirror is not None and s.mirror.controller == "test-controller" and codec.values(s)["run_m"] is False
+               for s in during)
     text = hub.log.read_text()
     # 10,000 garbage payloads: a line for the first, then one per interval with the count.
     assert 1 <= text.count("dropped malformed command") < 10, text[-3000:]
@@ -249,7 +250,7 @@ async def test_sigterm_of_a_running_nutrunner_hub_leaves_the_simulated_output_of
             while not running and time.monotonic() < deadline:
                 bus.publish(keys.cmd("nr"), command)
                 await asyncio.sleep(0.1)
-                running = any(codec.decode_state(s.payload).run_m for s in states.take_all())
+                running = any(codec.values(codec.decode_state(s.payload))["run_m"] for s in states.take_all())
             assert running, hub.log.read_text()[-3000:]
             assert trace.read_text().split()[-1] == "1"  # the simulated run output is on
             assert hub.process is not None

@@ -157,9 +157,9 @@ async def station(tmp_path: Path) -> AsyncIterator[MemoryStation]:
         await station.close()
 
 
-def commands_from(station: MemoryStation, resource: str, controller: str) -> list[tuple[dict[str, Value | None], int]]:
+def commands_from(station: MemoryStation, resource: str, controller: str) -> list[tuple[dict[str, Value], int]]:
     codec = station.codecs[resource]
-    found: list[tuple[dict[str, Value | None], int]] = []
+    found: list[tuple[dict[str, Value], int]] = []
     for sample in station.commands:
         if station.keys.resource_of(sample.key) == resource:
             command = codec.decode_command(sample.payload)

@@ -28,6 +28,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import load_station
+from common.config.modes import DeviceMode
 from common.model import Duration
 from common.stations import engine_assembly as ea
 from deploy.local.simworld import SimWorld
@@ -115,7 +116,7 @@ def test_sim_mode_leaves_devices_without_a_simulator_emulated() -> None:
     assert world.emulated == ["agv (agv)", "human (operator)"]
     assert sorted(d.type for d in world.devices.values()) == sorted(
         ["nutrunner", "lift", "rsp", "dock", "mir", "ur", "rfid", "camera"])
-    drivers = build_drivers(config, "human", model, mode="sim")
+    drivers = build_drivers(config, "human", model, mode=DeviceMode.SIM)
     assert type(drivers["human"]).__name__ == "EmulatedDriver"
 
 
@@ -280,7 +281,7 @@ async def test_simulated_devices_follow_the_reference_model(tmp_path: Path, monk
 
 async def _run(config: Path, run_dir: Path, speed: float, time_limit: float) -> tuple[int, list[str]]:
     lines: list[str] = []
-    options = Options(config=str(config), speed=speed, mode="sim", run_dir=run_dir, time_limit=time_limit)
+    options = Options(config=str(config), speed=speed, mode=DeviceMode.SIM, run_dir=run_dir, time_limit=time_limit)
     code = await run_station(options, say=lines.append)
     return code, lines
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import ConfigError, load_config, load_station, parse_config
+from common.config.modes import DeviceMode
 from common.model import Model, OperationState, Value, estimated, operation, tracking
 from common.model.compiled import CompiledModel
 from common.resources import nutrunner, ur
@@ -291,7 +292,7 @@ def test_hubs_emulate_station_types_from_the_model_alone() -> None:
     assert door.emulator.delay_of(model.transition_by_name["door.open.starting.effect"]) == 0.4
     assert cnc.emulator.delay_of(model.transition_by_name["cnc.cycle.starting.effect"]) == 0.5  # hubs.toml
     # `hubctl up --mode sim` leaves a type without a simulator emulated
-    assert effective_mode("cnc_door", "emulate", "sim") == "emulate"
+    assert effective_mode("cnc_door", DeviceMode.EMULATE, DeviceMode.SIM) is DeviceMode.EMULATE
 
 
 def test_a_station_type_parses_without_the_model() -> None:

@@ -17,7 +17,7 @@ import msgspec
 from common.bus.memory_bus import MemoryBus
 from common.model import OperationState
 from common.wire.ctl import (
-    Event,
+    ConsoleEvent,
     HubGone,
     OperationInfo,
     PlanInfo,
@@ -37,7 +37,7 @@ RUN_OPERATIONS = 20
 
 
 def picture(uptime: float, ops: dict[str, OperationState], ages: dict[str, float | None], plan: PlanInfo,
-            events: list[Event]) -> StatusMessage:
+            events: list[ConsoleEvent]) -> StatusMessage:
     return StatusMessage(
         station="s", controller="c-1", time=uptime, uptime=uptime,
         operations=[OperationInfo(name, state) for name, state in ops.items()],

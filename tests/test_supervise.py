@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import load_station
+from common.model import OperationState
 from controller.recording.reader import Record, open_run
 from controller.recording.schema import OperationRecord, RecordKind, RestoreRecord, StateRecord
 from deploy.cli import main as hubctl
@@ -127,7 +128,10 @@ def test_chaos_kills_once_its_moment_comes_and_waits_for_a_victim_being_restarte
 
 # --- each operation done once, from the records ---------------------------------------------------
 
-def _op(key: str, before: str, after: str) -> Record:
+INITIAL, EXECUTING, FINISHED = OperationState.INITIAL, OperationState.EXECUTING, OperationState.FINISHED
+
+
+def _op(key: str, before: OperationState, after: OperationState) -> Record:
     return Record(0.0, RecordKind.OPERATION, key, OperationRecord(before=before, after=after))
 
 
@@ -137,32 +141,32 @@ def _restore(**ops: str) -> Record:
 
 def test_a_restarted_controller_announcing_what_it_restored_finished_is_no_second_finish() -> None:
     done = DoneOnce([])
-    count_finishes([_op("A", "initial", "executing"), _op("A", "executing", "finished")], done)
-    count_finishes([_restore(A="finished"), _op("A", "initial", "finished")], done)
+    count_finishes([_op("A", INITIAL, EXECUTING), _op("A", EXECUTING, FINISHED)], done)
+    count_finishes([_restore(A="finished"), _op("A", INITIAL, FINISHED)], done)
     assert done.finishes == {"A": 1} and not done.redone()
     assert done.text() == "from 0 recordings: each of 1 finished operations finished once"
 
 
 def test_a_finish_whose_record_died_with_the_killed_controller_is_known_from_the_restored_state() -> None:
     done = DoneOnce([])
-    count_finishes([_op("A", "initial", "executing")], done)  # its finish was not handed over before the kill
-    count_finishes([_restore(A="finished"), _op("A", "initial", "finished")], done)
+    count_finishes([_op("A", INITIAL, EXECUTING)], done)  # its finish was not handed over before the kill
+    count_finishes([_restore(A="finished"), _op("A", INITIAL, FINISHED)], done)
     assert done.finishes == {"A": 1} and done.restored_only == {"A"} and not done.redone()
     assert "finished once (1 known from a restarted controller's restored state: A)" in done.text()
 
 
 def test_a_controller_that_lost_its_state_and_finishes_again_redid_the_operation() -> None:
     done = DoneOnce([])
-    count_finishes([_op("A", "initial", "executing"), _op("A", "executing", "finished")], done)
-    count_finishes([_op("A", "initial", "finished")], done)  # nothing restored
+    count_finishes([_op("A", INITIAL, EXECUTING), _op("A", EXECUTING, FINISHED)], done)
+    count_finishes([_op("A", INITIAL, FINISHED)], done)  # nothing restored
     assert done.redone() == {"A": 2}
     assert done.text().startswith("REDONE") and "A 2 times" in done.text()
 
 
 def test_an_operation_reset_may_finish_again() -> None:
     done = DoneOnce([])
-    count_finishes([_op("A", "executing", "finished"), _op("A", "finished", "initial"),
-                    _op("A", "initial", "executing"), _op("A", "executing", "finished")], done)
+    count_finishes([_op("A", EXECUTING, FINISHED), _op("A", FINISHED, INITIAL),
+                    _op("A", INITIAL, EXECUTING), _op("A", EXECUTING, FINISHED)], done)
     assert done.finishes == {"A": 2} and not done.redone()
 
 
@@ -229,7 +233,7 @@ def fault_station(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[P
 async def _up(config: Path, **options: object) -> tuple[int, str]:
     lines: list[str] = []
     code = await run_station(Options(config=str(config), run_dir=config.parent / "up", time_limit=120.0,
-                                     **options), say=lines.append)  # type: ignore[arg-type]
+                                     **options), say=lines.append)  # type: ignore[arg-type]  # each test's Options fields
     return code, "\n".join(lines)
 
 
@@ -289,9 +293,9 @@ async def test_the_controller_killed_mid_run_resumes_from_its_database_and_does_
     assert "finished: 4/4 operations" in output and "restarts: controller 1" in output
     _first, second = _recordings(fault_station)
     with open_run(second) as run:  # the restarted controller took what the first had finished from its SQLite
-        restored = [r.data for r in run.events(kinds={RecordKind.RESTORE})]
+        restored = [r.data_as(RestoreRecord) for r in run.events(kinds={RecordKind.RESTORE})]
     assert restored and "finished" in {v for r in restored for k, v in r.values.items() if k.startswith("op.")}, \
-        restored  # type: ignore[union-attr]
+        restored
     assert_each_bolt_tightened_once(fault_station, output)
 
 
@@ -312,7 +316,7 @@ async def test_a_hub_that_keeps_dying_ends_the_run_with_its_start_limit(fault_st
     commands = station_module.child_commands
 
     def broken_pi_tool(*args: object, **kwargs: object) -> list[Child]:
-        children = commands(*args, **kwargs)  # type: ignore[arg-type]
+        children = commands(*args, **kwargs)  # type: ignore[arg-type]  # passed on as run_station gave them
         for child in children:
             if child.name == "pi-tool":
                 child.argv = _python("import sys; print('pi-tool: no nutrunner on /dev/i2c-1', flush=True); "

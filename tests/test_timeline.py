@@ -18,6 +18,7 @@ import pytest
 from matplotlib.image import imread
 from textual.widgets import Static
 
+from common.model import OperationState
 from common.stations import load_model
 from common.wire.ctl import HubGone
 from controller.console.app import ConsoleApp
@@ -31,8 +32,10 @@ from controller.recording.schema import (
     PlanRequestRecord,
     RecordKind,
     RunMeta,
+    RunMode,
     StateRecord,
     WatchdogRecord,
+    WatchdogVerdict,
 )
 from controller.recording.writer import RECORDING_DIR_ENV, RecordingWriter
 from controller.timeline.model import Timeline, build_timeline
@@ -119,21 +122,24 @@ def test_the_png_has_a_band_per_lane_with_ink_where_its_spans_are(reference_run:
 
 def fault_recording(directory: Path) -> Path:
     """The fault station: nr unhealthy from t=2 to t=5 (its hub gone at 1.9), ur moving meanwhile."""
-    writer = RecordingWriter(directory, RunMeta(station="fault_station", model=FAULT_MODEL, mode="service",
+    writer = RecordingWriter(directory, RunMeta(station="fault_station", model=FAULT_MODEL, mode=RunMode.SERVICE,
                                                 requested=["TightenBolt1"], started=1000.0),
                              max_bytes=1 << 20, keep=10, flush_s=0.01)
     put = writer.put
-    put(0.0, RecordKind.OPERATION, "TightenBolt1", OperationRecord(before="initial", after="executing"))
+    put(0.0, RecordKind.OPERATION, "TightenBolt1",
+        OperationRecord(before=OperationState.INITIAL, after=OperationState.EXECUTING))
     put(0.0, RecordKind.PLAN_REQUEST, "1", PlanRequestRecord(generation=1, goals=["TightenBolt1"], reason="start"))
     put(1.0, RecordKind.COMMAND, "ur", CommandRecord(values={"ur.ref_pos_c": "at_bolt1"}, seq=1))
     put(1.5, RecordKind.STATE, "ur", StateRecord(values={"ur.pos_m": "unknown"}))
     put(1.9, RecordKind.EVENT, "hub_gone", HubGone("pi-tool"))
-    put(2.0, RecordKind.WATCHDOG, "nr", WatchdogRecord(verdict="unhealthy", detail="hub pi-tool not alive"))
+    put(2.0, RecordKind.WATCHDOG, "nr",
+        WatchdogRecord(verdict=WatchdogVerdict.UNHEALTHY, detail="hub pi-tool not alive"))
     put(2.0, RecordKind.PLAN_REQUEST, "2", PlanRequestRecord(generation=2, goals=["TightenBolt1"],
                                                              reason="resource health changed", detail="nr"))
     put(3.0, RecordKind.STATE, "ur", StateRecord(values={"ur.pos_m": "at_bolt1"}))
-    put(5.0, RecordKind.WATCHDOG, "nr", WatchdogRecord(verdict="recovered"))
-    put(6.0, RecordKind.OPERATION, "TightenBolt1", OperationRecord(before="executing", after="error"))
+    put(5.0, RecordKind.WATCHDOG, "nr", WatchdogRecord(verdict=WatchdogVerdict.RECOVERED))
+    put(6.0, RecordKind.OPERATION, "TightenBolt1",
+        OperationRecord(before=OperationState.EXECUTING, after=OperationState.ERROR))
     writer.update_meta(outcome="stopped", duration=6.0)
     writer.close()
     return writer.path
@@ -184,7 +190,7 @@ def test_hubctl_runs_lists_the_runs_newest_first_with_their_outcome(tmp_path: Pa
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
     outcomes = [("finished", 45, 45, 3, 0, 51.2), ("stopped", 12, 45, 9, 2, 20.0), ("running", 4, 45, 1, 1, 0.0)]
     for i, (outcome, done, total, replans, faults, duration) in enumerate(outcomes):
-        writer = RecordingWriter(tmp_path, RunMeta(station="s", mode="up", started=1_700_000_000.0 + 60 * i,
+        writer = RecordingWriter(tmp_path, RunMeta(station="s", mode=RunMode.UP, started=1_700_000_000.0 + 60 * i,
                                                    run=f"run{i}"), max_bytes=1 << 20, keep=10)
         if outcome != "running":  # a killed controller never writes its end
             writer.update_meta(outcome=outcome, operations_done=done, operations_total=total, plans=replans + 1,

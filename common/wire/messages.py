@@ -419,7 +419,7 @@ class Codec:
                 self._check_value(v, value, seq=getattr(message, "seq", None),
                                   controller=getattr(message, "controller", None), where=where)
 
-    def _explain(self, data: object, what: MessageKind) -> MessageError:
+    def _explain(self, data: bytes | bytearray | memoryview, what: MessageKind) -> MessageError:
         """Why a payload failed the typed decode, as precisely as it can be said."""
         try:
             return self._diagnose(data, what)
@@ -429,10 +429,10 @@ class Codec:
             return MessageError(f"resource {self.resource}: unreadable {what}: {type(exc).__name__}: {exc}",
                                 resource=self.resource)
 
-    def _diagnose(self, data: object, what: MessageKind) -> MessageError:
+    def _diagnose(self, data: bytes | bytearray | memoryview, what: MessageKind) -> MessageError:
         prefix = f"resource {self.resource}: {what}"
         try:
-            raw = msgspec.msgpack.decode(data)  # type: ignore[call-overload]
+            raw = msgspec.msgpack.decode(data)
         except Exception as exc:
             return MessageError(f"{prefix} is not MessagePack ({exc})", resource=self.resource)
         if not isinstance(raw, dict):

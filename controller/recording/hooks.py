@@ -33,6 +33,7 @@ from controller.recording.schema import (
     HubState,
     LivelinessRecord,
     OperationRecord,
+    PlanAnswer,
     PlanRecord,
     PlanRequestRecord,
     RecordKind,
@@ -43,6 +44,7 @@ from controller.recording.schema import (
     StepRecord,
     TickRecord,
     WatchdogRecord,
+    WatchdogVerdict,
     state_hash,
     station_model_hash,
 )
@@ -153,9 +155,10 @@ class RunRecorder:
         if keys != self._unhealthy_keys and unhealthy.keys() != self._unhealthy.keys():
             for resource, reason in unhealthy.items():
                 if resource not in self._unhealthy:
-                    sink.put(t, RecordKind.WATCHDOG, resource, WatchdogRecord(verdict="unhealthy", detail=reason))
+                    sink.put(t, RecordKind.WATCHDOG, resource,
+                             WatchdogRecord(verdict=WatchdogVerdict.UNHEALTHY, detail=reason))
             for resource in self._unhealthy.keys() - unhealthy.keys():
-                sink.put(t, RecordKind.WATCHDOG, resource, WatchdogRecord(verdict="recovered"))
+                sink.put(t, RecordKind.WATCHDOG, resource, WatchdogRecord(verdict=WatchdogVerdict.RECOVERED))
             self._unhealthy = dict(unhealthy)
         self._unhealthy_keys = keys
         sink.put(t, RecordKind.TICK, "", TICK)
@@ -205,7 +208,8 @@ class RunRecorder:
             t = self.clock()
             for name, old, new in zip(self._operations, self._op_values, values, strict=True):
                 if old != new:
-                    sink.put(t, RecordKind.OPERATION, name, OperationRecord(before=str(old), after=str(new)))
+                    record = OperationRecord(before=OperationState(str(old)), after=OperationState(str(new)))
+                    sink.put(t, RecordKind.OPERATION, name, record)
             self._op_values = values
         events = self.core.events.log
         if events.total != self._events_read:  # after every tick: nothing new is the common case
@@ -214,7 +218,8 @@ class RunRecorder:
                 log.error("the run recording missed %d events of the controller's log", news.missed)
             t = self.clock()
             for event in news.events:
-                sink.put(t, RecordKind.EVENT, type(event).__struct_config__.tag, event)  # type: ignore[arg-type]
+                # Its `kind` on the wire: each event class names it (tag="..."), which msgspec types as str | int.
+                sink.put(t, RecordKind.EVENT, str(type(event).__struct_config__.tag), event)
             self._events_read = news.cursor
 
     def _operation_values(self, state: State) -> tuple[Value, ...]:
@@ -240,8 +245,9 @@ class RunRecorder:
 def plan_record(request: PlanRequest, result: Plan | NoPlan | None, *, taken: bool,
                 improvement: bool = False) -> PlanRecord:
     cause = request.reason
-    record = PlanRecord(generation=request.generation, answer="improvement" if improvement else "first",
-                        taken=taken, goals=list(request.goals), reason=cause.reason.value, detail=cause.detail)
+    answer = PlanAnswer.IMPROVEMENT if improvement else PlanAnswer.FIRST
+    record = PlanRecord(generation=request.generation, answer=answer, taken=taken, goals=list(request.goals),
+                        reason=cause.reason.value, detail=cause.detail)
     if isinstance(result, Plan):
         stats = result.stats
         record.goals = list(result.goals)  # one of the request's, when planned alone

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import enum
 import hashlib
-from typing import Any
+from typing import Any, TypedDict
 
 import msgspec
 
@@ -125,6 +125,15 @@ class PlanAnswer(enum.StrEnum):
     IMPROVEMENT = "improvement"
 
 
+class BudgetCounts(TypedDict, total=False):
+    """The planner counts that bounded an in-process run's search: the `Budget` fields of the same names,
+    so that a replay plans alike."""
+
+    first_expansions: int
+    improve_expansions: int
+    symbolic_layers: int
+
+
 class RunMeta(msgspec.Struct, kw_only=True):
     """A run's description (`run_meta`); `ended`, `outcome` and the counts are written when it ends
     (`outcome` stays RUNNING in a recording whose controller was killed)."""
@@ -138,7 +147,7 @@ class RunMeta(msgspec.Struct, kw_only=True):
     config: str = ""  # hubs.toml path ("" in-process)
     mode: RunMode = RunMode.SERVICE
     seed: int | None = None  # of emulated outcomes (up, in-process)
-    budget: dict[str, int] | None = None  # planner counts when they bound the search (in-process)
+    budget: BudgetCounts | None = None  # planner counts when they bound the search (in-process)
     requested: list[str] = msgspec.field(default_factory=list)  # operations requested at start
     started: float = 0.0  # wall clock (time.time())
     ended: float | None = None

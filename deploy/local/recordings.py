@@ -9,7 +9,7 @@ from common.model import Model
 from controller.planner import Budget
 from controller.recording.hooks import open_recording
 from controller.recording.reader import list_runs
-from controller.recording.schema import RunMeta, RunMode
+from controller.recording.schema import BudgetCounts, RunMeta, RunMode
 from controller.recording.writer import RecordingWriter, recording_dir
 
 
@@ -23,8 +23,8 @@ def recording_settings(config_path: str | Path | None) -> RecordingConfig:
 def in_process_recording(model: Model, model_reference: str, config_path: str | None, *, seed: int,
                          budget: Budget) -> RecordingWriter | None:
     """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
-    counts = {"first_expansions": budget.first_expansions, "improve_expansions": budget.improve_expansions,
-              "symbolic_layers": budget.symbolic_layers}
+    counts = BudgetCounts(first_expansions=budget.first_expansions, improve_expansions=budget.improve_expansions,
+                          symbolic_layers=budget.symbolic_layers)
     meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode=RunMode.IN_PROCESS,
                    seed=seed,
                    budget=counts)

@@ -16,6 +16,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from .chaos import Chaos, ChaosPlan, plan_chaos
 from .done_once import check_done_once, run_recordings
 from .localcerts import local_certs, watcher_zenoh_config
 from .recordings import recording_since
-from .supervisor import Child, Supervisor
+from .supervisor import Child, Say, Supervisor
 
 RUN_DIR = Path("var/up")
 OPERATION_LABELS = {OperationState.EXECUTING: "start", OperationState.FINISHED: "done ", OperationState.ERROR: "ERROR",
@@ -48,7 +49,7 @@ class AlreadyRunning(RuntimeError):
 
 
 @contextlib.contextmanager
-def single_instance(run_dir: Path):  # type: ignore[no-untyped-def]
+def single_instance(run_dir: Path) -> Iterator[None]:
     run_dir.mkdir(parents=True, exist_ok=True)
     lock_path = run_dir / "up.lock"
     handle = lock_path.open("a+")
@@ -113,7 +114,7 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
 class Progress:
     """Prints what changed in the controller's status: operations, and what each resource is doing."""
 
-    def __init__(self, say: object, total: int) -> None:
+    def __init__(self, say: Say, total: int) -> None:
         self.say = say
         self.total = total
         self.op_states: dict[str, OperationState] = {}
@@ -151,23 +152,25 @@ class Progress:
                 continue
             label = OPERATION_LABELS[op.state]
             extra = f"  ({op.error})" if op.error else ""
-            say(f"[{done:2d}/{self.total}] {status.uptime:6.1f}s  {label}  {op.name}{extra}")  # type: ignore[operator]
+            say(f"[{done:2d}/{self.total}] {status.uptime:6.1f}s  {label}  {op.name}{extra}")
         current: dict[str, str] = {}
-        steps = plan.steps if plan is not None and status.plan is not None and plan.id == status.plan.id else []
-        for j, step in enumerate(steps):
-            if not status.plan.is_done(j) and step.resource not in current:  # type: ignore[union-attr]
-                current[step.resource] = step.transition.split(".", 2)[1] if "." in step.transition else step.transition
+        under_way = status.plan
+        if plan is not None and under_way is not None and plan.id == under_way.id:
+            for j, step in enumerate(plan.steps):
+                if not under_way.is_done(j) and step.resource not in current:
+                    current[step.resource] = step.transition.split(".", 2)[1] if "." in step.transition \
+                        else step.transition
         unhealthy = {h.resource: h.reason for h in status.health if not h.healthy}
         activity = " | ".join(f"{r}: {a}" for r, a in sorted(current.items()))
         now = time.monotonic()
         if activity and (activity != self.activity and now - self.last_activity_at > 1.0):
-            say(f"          {status.uptime:6.1f}s  now  {activity}")  # type: ignore[operator]
+            say(f"          {status.uptime:6.1f}s  now  {activity}")
             self.activity, self.last_activity_at = activity, now
         for resource, reason in unhealthy.items():
             if resource not in self.reported:
-                say(f"          {status.uptime:6.1f}s  UNHEALTHY  {resource}: {reason}")  # type: ignore[operator]
+                say(f"          {status.uptime:6.1f}s  UNHEALTHY  {resource}: {reason}")
         for healed in self.reported - set(unhealthy):
-            say(f"          {status.uptime:6.1f}s  recovered  {healed}")  # type: ignore[operator]
+            say(f"          {status.uptime:6.1f}s  recovered  {healed}")
         self.reported = set(unhealthy)
 
 
@@ -179,13 +182,13 @@ def chaos_plan(options: Options, children: list[Child], model: Model) -> ChaosPl
     return plan_chaos(options.chaos, options.seed, [c.name for c in children], len(model.operations))
 
 
-async def run_station(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
+async def run_station(options: Options, say: Say = print) -> int:
     config, model = load_station(options.config)
     with local_certs(config) as certs:
         return await _run_station(options, say, config, model, certs)
 
 
-async def _run_station(options: Options, say, config: StationConfig, model: Model,  # type: ignore[no-untyped-def]
+async def _run_station(options: Options, say: Say, config: StationConfig, model: Model,
                        certs: Path | None) -> int:
     port = free_port()
     children = child_commands(config, options, port, certs)
@@ -294,7 +297,7 @@ async def _run_station(options: Options, say, config: StationConfig, model: Mode
     return result
 
 
-def up(options: Options, say=print) -> int:  # type: ignore[no-untyped-def]
+def up(options: Options, say: Say = print) -> int:
     try:
         with single_instance(options.run_dir):
             return asyncio.run(run_station(options, say))

@@ -168,7 +168,7 @@ class Supervisor:
                 return
             self.restarts[child.name] = restart
             await self._spawn(child)
-            self._line(f"restarted  {child.name} (pid {child.process.pid})")  # type: ignore[union-attr]
+            self._line(f"restarted  {child.name} (pid {child.process.pid})")
 
     def pid(self, name: str) -> int | None:
         """The pid of the child while it runs; None while it waits for its restart."""

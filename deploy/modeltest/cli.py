@@ -196,7 +196,7 @@ def _run(bus: BusThread, target: Target, resources: list[str], options: Options)
     return code
 
 
-def register_test_command(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def register_test_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     """Add `hubctl test` to hubctl's subcommands (deploy/cli.py build_parser)."""
 
     def positive(text: str) -> float:

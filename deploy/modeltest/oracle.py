@@ -118,7 +118,7 @@ class ResourceOracle:
         return tuple(values[p] for p in self.commands + self.context)
 
     def measured_of(self, values: Mapping[str, Value | None]) -> State:
-        return tuple(values[p] for p in self.measured)  # type: ignore[misc]
+        return tuple(values[p] for p in self.measured)  # type: ignore[misc]  # None: the session refused it before
 
     def commands_of(self, env: State) -> dict[str, Value]:
         return dict(zip(self.commands, env[:len(self.commands)], strict=True))

@@ -39,7 +39,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def register_replay_command(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_replay_command(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     replay = sub.add_parser("replay", help="replay a recorded run on a fresh controller and check it decides the "
                                            "same (plans, commands, operation transitions)")
     replay.add_argument("run", metavar="RUN", help="a recording (var/runs/*.sqlite by default)")

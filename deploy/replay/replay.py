@@ -119,8 +119,9 @@ def compared(record: Record) -> tuple[Any, ...]:
     """What must be the same in a recorded and a replayed decision."""
     data = record.data
     if isinstance(data, PlanRecord):  # not the planner's wall time, member or counts
-        data = (data.answer, data.taken, data.goals, data.found, data.steps, data.no_plan, data.unreachable,
+        plan = (data.answer, data.taken, data.goals, data.found, data.steps, data.no_plan, data.unreachable,
                 data.proven, data.reason, data.detail)
+        return record.kind, record.key, msgspec.to_builtins(plan)
     return record.kind, record.key, msgspec.to_builtins(data)
 
 
@@ -194,18 +195,18 @@ class Replayer:
             result.cut_short = len(replayed) - len(recorded)
         elif len(recorded) != len(replayed):
             extra = (recorded if len(recorded) > len(replayed) else replayed)[min(len(recorded), len(replayed))]
-            mine = _show(extra.data) if len(recorded) > len(replayed) else "nothing"
-            theirs = "nothing" if len(recorded) > len(replayed) else _show(extra.data)
-            result.divergence = Divergence(extra.t, extra.kind.value, extra.key, mine, theirs)
+            recorded_text = _show(extra.data) if len(recorded) > len(replayed) else "nothing"
+            replayed_text = "nothing" if len(recorded) > len(replayed) else _show(extra.data)
+            result.divergence = Divergence(extra.t, extra.kind.value, extra.key, recorded_text, replayed_text)
         return result
 
     # --- the inputs -----------------------------------------------------------------------
     def _state(self, record: Record) -> None:
-        data: StateRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(StateRecord)
         self.loop.ingest(data.values)
 
     def _watchdog(self, record: Record) -> None:
-        data: WatchdogRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(WatchdogRecord)
         if data.verdict == WatchdogVerdict.UNHEALTHY:
             self.unhealthy[record.key] = data.detail
         else:
@@ -220,16 +221,16 @@ class Replayer:
         self.loop.resend(self.held, [record.key])
 
     def _hold(self, record: Record) -> None:
-        data: HoldRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(HoldRecord)
         self.held = frozenset(data.resources)
         self.core.set_unknown(data.paths)
 
     def _restore(self, record: Record) -> None:
-        data: RestoreRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(RestoreRecord)
         self.core.load(data.values)
 
     def _request(self, record: Record) -> None:
-        data: RequestRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(RequestRecord)
         self.requests.apply(data.request)
 
     def _plan_request(self, _record: Record) -> None:
@@ -238,7 +239,7 @@ class Replayer:
             self.asked[request.generation] = request
 
     def _plan(self, record: Record) -> None:
-        data: PlanRecord = record.data  # type: ignore[assignment]
+        data = record.data_as(PlanRecord)
         request = self.asked.get(data.generation)
         if request is None:
             return  # not asked for in the replay: the plan requests already differ

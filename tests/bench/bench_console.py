@@ -21,6 +21,7 @@ import msgspec
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from common.config.modes import DeviceMode
 from common.model import Kind, OperationState
 from common.wire.ctl import (
     ConsoleReply,
@@ -103,7 +104,7 @@ class CannedFeed:
 def station_info(feed: CannedFeed) -> StationInfo:
     kinds = {f"{r}.{name}": kind for r in feed.names for name, kind in KINDS}
     return StationInfo(station="bench", kinds=kinds, goals={f"Op{i}": f"r{i:03d}.tqr_m" for i in range(OPERATIONS)},
-                       modes=dict.fromkeys(feed.names, "emulate"))
+                       modes=dict.fromkeys(feed.names, DeviceMode.EMULATE))
 
 
 async def measure(resources: int) -> None:

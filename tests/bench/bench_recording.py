@@ -36,11 +36,16 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
+
 from common.bus.memory_bus import MemoryBus, MemoryHub  # noqa: E402
 from common.bus.protocol import Sample  # noqa: E402
 from common.config.hubs_toml import load_station  # noqa: E402
 from common.wire.messages import HubStatus  # noqa: E402
-from controller.recording.schema import RunMeta, RunOutcome  # noqa: E402
+from controller.recording.schema import (  # noqa: E402
+    RunMeta,
+    RunMode,
+    RunOutcome,
+)
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from controller.service import ControllerService  # noqa: E402
 from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, write_station  # noqa: E402
@@ -73,7 +78,7 @@ async def _service(directory: Path, resources: int, states: int, *, record: bool
     config, model = load_station(write_station(directory, f"rec_{os.getpid()}", resources))
     bus = await MemoryBus(MemoryHub()).open()  # commands are published into it, heard by no one
     service = ControllerService(config, model, bus, db=str(directory / "ctl.sqlite"),
-                                planner_process=False, record=RunMeta(mode="service") if record else None)
+                                planner_process=False, record=RunMeta(mode=RunMode.SERVICE) if record else None)
     routes = service.ingest.routes
     keys = list(routes)
     payloads = []

@@ -15,6 +15,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from common.config.modes import DeviceMode  # noqa: E402
 from deploy.local.station import Options, run_station  # noqa: E402
 
 
@@ -24,7 +25,7 @@ def main() -> int:
     parser.add_argument("--time-limit", type=float, default=1800.0)
     args = parser.parse_args()
     began = time.monotonic()
-    code = asyncio.run(run_station(Options(config=str(ROOT / "hubs.toml"), mode="sim", speed=args.speed,
+    code = asyncio.run(run_station(Options(config=str(ROOT / "hubs.toml"), mode=DeviceMode.SIM, speed=args.speed,
                                            time_limit=args.time_limit, run_dir=ROOT / "var" / "bench-sim")))
     print(f"reference station in sim mode: exit {code}, {time.monotonic() - began:.1f} s wall")
     return code

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import ConfigError, load_config
+from common.config.modes import DeviceMode
 from deploy.local.simworld import SimWorld
 from hubs.drivers.registry import ENTRY_POINT_GROUP, driver_types, find_driver
 from hubs.factory import check_devices, effective_mode, make_driver
@@ -152,9 +153,9 @@ def test_a_broken_plugin_names_its_entry_point_and_group(installed: Path) -> Non
 
 
 def test_sim_mode_runs_a_plugin_type_with_a_simulator_and_emulates_one_without(installed: Path) -> None:
-    assert effective_mode("gripper", "real", "sim") == "sim"
-    assert effective_mode("feeder", "real", "sim") == "emulate"
-    assert effective_mode("feeder", "real", "real") == "real"
+    assert effective_mode("gripper", DeviceMode.REAL, DeviceMode.SIM) is DeviceMode.SIM
+    assert effective_mode("feeder", DeviceMode.REAL, DeviceMode.SIM) is DeviceMode.EMULATE
+    assert effective_mode("feeder", DeviceMode.REAL, DeviceMode.REAL) is DeviceMode.REAL
 
 
 def test_an_unknown_parameter_names_file_line_resource_and_key(installed: Path, tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from common.wire.ctl import StateSnapshot
-from common.wire.messages import SCHEMA, Codec, encode
+from common.wire.messages import SCHEMA, Codec, HubStatus, encode
 from hubs.selftest import report_message
 from tests.fault_station.harness import Station
 from tests.fault_station.model import BOLT_POSES
@@ -23,9 +23,9 @@ def message_samples(station: Station) -> dict[str, list[bytes]]:
     nr, ur = codecs["nr"], codecs["ur"]
     command = {"nr": nr.command({"run_c": False}, seq=1, controller="intruder"),
                "ur": ur.command({"ref_pos_c": "home"}, seq=1, controller="intruder")}
-    state = {"nr": nr.state({"run_m": False, "tqr_m": False, "fail_m": False}, status="ok", seq=1, hub="x",
+    state = {"nr": nr.state({"run_m": False, "tqr_m": False, "fail_m": False}, status=HubStatus.OK, seq=1, hub="x",
                             mirror=command["nr"]),
-             "ur": ur.state({"pos_m": "home", "prot_stop_m": False}, status="ok", seq=1, hub="x",
+             "ur": ur.state({"pos_m": "home", "prot_stop_m": False}, status=HubStatus.OK, seq=1, hub="x",
                             mirror=command["ur"])}
     status = station.watch.status()
     snapshot = StateSnapshot(time=time.time(), values=station.watch.snapshot())

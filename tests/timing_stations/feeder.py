@@ -19,6 +19,7 @@ the box taken: no plan the devices can follow.
 from __future__ import annotations
 
 from common.model import (
+    Ability,
     Domain,
     Model,
     Phase,
@@ -46,7 +47,7 @@ def robot(name: str, delay: float = ROBOT_DELAY, gripper_name: str = "", leaves_
     ref_c = command(f"{name}.ref_c", Domain.enum(*POSES), "home", "the pose the robot is sent to")
     pos_m = measured(f"{name}.pos_m", Domain.enum(*POSES, UNKNOWN), "home", "the pose it is at, or unknown")
 
-    def move_to(target: str) -> object:
+    def move_to(target: str) -> Ability:
         at_rest_elsewhere = " || ".join(f"(pos_m == {p} && ref_c == {p})" for p in POSES if p != target)
         at_rest_elsewhere = at_rest_elsewhere.replace("pos_m", pos_m.path).replace("ref_c", ref_c.path)
         sent = f"{ref_c.path} == {target}"
