@@ -132,7 +132,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                              f"in that file's [station] model, or use --in-process")
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record))
-    from controller.control import VIRTUAL_BUDGET
+    from controller.planner.policy import VIRTUAL_BUDGET
 
     from .local.inprocess import run_in_process
 

@@ -36,7 +36,7 @@ from common.timeline.render import DPI, WIDTH_IN, Drawn, render
 from controller.console.app import ConsoleApp
 from controller.console.gantt import NAME_WIDTH, gantt_lines
 from controller.console.station import StationInfo
-from controller.control import VIRTUAL_BUDGET
+from controller.planner.policy import VIRTUAL_BUDGET
 from deploy.cli import main as hubctl
 from deploy.local.inprocess import RunSummary, run_in_process
 from deploy.local.recordings import in_process_recording

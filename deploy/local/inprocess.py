@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from common.ctl import NoPlanFound, PlanFound
 from common.model import Model, OperationState
-from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget
+from controller.planner.policy import VIRTUAL_BUDGET
 from controller.recorder import RunRecorder, Sink
 from controller.stack import build_controller_stack
 from hubs.emulator import EffectEmulator
