@@ -51,6 +51,7 @@ class StopAt:
 
     planner: Planner
     goals: tuple[Predicate, ...]
+    start: State
     at: int | None = None
     armed: bool = False
     looks: int = 0
@@ -61,7 +62,7 @@ class StopAt:
         if not self.armed:
             return False
         self.looks += 1
-        self.ready.append(self.planner.heuristic_ready(self.goals, frozenset()))
+        self.ready.append(self.planner.heuristic_ready(self.goals, frozenset(), self.start))
         if self.at is not None and self.looks >= self.at:
             self.looks_after_stop += self.looks > self.at
             return True
@@ -83,37 +84,38 @@ def test_a_stop_anywhere_in_the_improvement_ends_it_at_once_and_the_next_search_
     case = machine_tending
     goals = tuple(case.goals.values())
     reference_planner = case.planner()
-    whole = StopAt(reference_planner, goals)
+    whole = StopAt(reference_planner, goals, case.start)
     reference = run(reference_planner, case, whole)
     best = reference[-1]
     assert isinstance(best, Plan) and best.stats.minimal and len(reference) >= 1
-    building = whole.ready.count(False)  # looks while A*'s heuristic was being built, before it was stored
+    building = whole.ready.count(False)  # looks while A*'s tables for the start were being built
     assert building > 5 and whole.looks > 100, (building, whole.looks)
     # Stop points all through the improvement: the heuristic's build, its tables for the start (where a stop
     # used to leave half-built tables), A*'s search.
-    points = sorted({*range(1, building + 1), *range(building + 1, whole.looks + 1, max(1, whole.looks // 25))})
+    points = sorted({*range(1, building + 1, max(1, building // 20)), building, building + 1,
+                     *range(building + 1, whole.looks + 1, max(1, whole.looks // 10))})
     for at in points:
         planner = case.planner()
-        stop = StopAt(planner, goals, at)
+        stop = StopAt(planner, goals, case.start, at)
         stopped = run(planner, case, stop)
         assert stop.looks == at and stop.looks_after_stop == 0, f"stop at look {at}: {stop.looks} looks"
         assert isinstance(stopped[0], Plan) and not stopped[-1].stats.minimal, (at, stopped)
-        # A table build cut short is not stored; one finished before the stop is kept warm.
-        assert planner.heuristic_ready(goals, frozenset()) == (at > building), at
+        # Tables cut short are not ready (a warm A* in a first answer would build them); finished ones are.
+        assert planner.heuristic_ready(goals, frozenset(), case.start) == (at > building), at
         again = run(planner, case, None)[-1]
         assert isinstance(again, Plan) and again.stats.minimal, (at, again)
         assert [s.transition for s in again.steps] == [s.transition for s in best.steps], at
 
 
 def test_a_table_build_stopped_part_way_is_not_stored(machine_tending: Case) -> None:
-    """Without cooperative checks in the builders, the build ran to its end and was stored before A* looked."""
+    """Without cooperative checks in the builders, the build ran to its end before A* looked."""
     case = machine_tending
     goals = tuple(case.goals.values())
     planner = case.planner()
-    stop = StopAt(planner, goals, at=3)
+    stop = StopAt(planner, goals, case.start, at=3)
     run(planner, case, stop)
     assert stop.ready[:3] == [False, False, False]
-    assert not planner.heuristic_ready(goals, frozenset())
+    assert not planner.heuristic_ready(goals, frozenset(), case.start)
 
 
 def test_searches_say_how_they_ended() -> None:

@@ -317,6 +317,10 @@ class Abstraction:
             self.reach_from(initial, stop)
             self._initial_index = initial
 
+    def covers(self, state: int) -> bool:
+        """`reachable` already holds what `reach_from_initial` and `reach_from(state)` would add."""
+        return self._initial_index is not None and bool(self.reachable[state] or self.blocked[state])
+
     def reach_from(self, state: int, stop: StopTest | None = None) -> bool:
         """Extend `reachable` by the abstract states reachable from `state`; True if it grew.
 

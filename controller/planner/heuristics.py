@@ -107,6 +107,10 @@ class ConjunctionGroup:
             self.table = abstraction.distances(("holds", self.goal), lambda: ((x, 0) for x in goal_states), stop)
             self._version = abstraction.reachable_version
 
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing."""
+        return self.abstraction.covers(self.index(start)) and self._version == self.abstraction.reachable_version
+
     def value(self, s: State) -> int:
         return self.table[self.index(s)]
 
@@ -465,6 +469,10 @@ class GoalHeuristic:
             self._candidates = [chosen]
         for g in self.groups:
             g.prepare(start, stop)
+
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing: a search from `start` costs no table build."""
+        return len(self._candidates) == 1 and all(g.ready_for(start) for g in self.groups)
 
     def __call__(self, s: State) -> int:
         return self._value(self.groups, s)

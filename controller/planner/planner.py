@@ -111,9 +111,11 @@ class Planner:
             is_goal = self._predicates[goal] = self.compiled.predicate(goal)
         return is_goal
 
-    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str]) -> bool:
-        """The A* tables for these goals are built (a search with them costs no cold build)."""
-        return (disabled, goals) in self._heuristics
+    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str], start: State) -> bool:
+        """The A* tables for these goals are built for `start` (a search from it costs no table build; a
+        stopped build or preparation leaves them not ready, to be completed by the next one)."""
+        heuristic = self._heuristics.get((disabled, goals))
+        return heuristic is not None and heuristic.ready_for(start)
 
     def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset(),
                   stop: StopTest | None = None) -> GoalHeuristic:

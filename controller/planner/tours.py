@@ -128,6 +128,10 @@ class TourGroup:
         self._cache.clear()
         self._values.clear()
 
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing."""
+        return self.abstraction.covers(self.index(start)) and self._version == self.abstraction.reachable_version
+
     def _potentials(self, reach: list[list[int]], pairs: list[list[tuple[int, int]]],
                     stop: StopTest | None) -> tuple[list[list[int]], list[list[int]]]:
         """Edge costs shifted by potentials on the states where achievers fire.
