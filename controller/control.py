@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -22,7 +22,6 @@ from common.wire.ctl import (
     NoPlanFound,
     PlanFound,
     PlanKept,
-    PlannedAlone,
     ReplanCause,
     Replanned,
     ReplanReason,
@@ -34,11 +33,9 @@ from .events import EventLog
 from .livelock import RETRIES as LIVELOCK_RETRIES
 from .livelock import LivelockWatch, Repeat
 from .planner import Budget, NoPlan, Plan, Planner
-from .planner.reuse import memory_key
+from .planner.policy import RETRY_FIRST_S, RETRY_MAX_S, live_budget, solve_goals
 from .safety import SafetyMonitor
 
-RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
-RETRY_MAX_S = 60.0
 AT_START = ReplanCause(ReplanReason.START)
 
 
@@ -92,58 +89,6 @@ class ControlEvents:
     no_plans: int = 0
     abilities_started: int = 0
     log: EventLog = field(default_factory=EventLog)
-
-
-def anytime_answers(planner: Planner, request: PlanRequest,
-                    budget: Budget) -> Iterator[tuple[Plan | NoPlan | None, PlannedAlone | None]]:
-    """The answers to one request: the portfolio's for all goals together; if it neither finds a plan nor
-    shows one impossible, the first goal alone that has one (progress over minimality, as the original
-    planner did for hard cases), with a note that says so."""
-    if not request.goals:
-        yield None, None
-        return
-    if not request.reuse:
-        planner.memory.forget(memory_key(request.goals, request.disabled))
-    last: Plan | NoPlan | None = None
-    for last in planner.plan_anytime(request.start, request.goals, request.disabled, budget):
-        if isinstance(last, Plan):
-            yield last, None
-    if isinstance(last, Plan):
-        return
-    assert isinstance(last, NoPlan)
-    if not last.proven and len(request.goals) > 1:
-        for name, goal in request.goals.items():
-            single = planner.plan(request.start, {name: goal}, request.disabled, budget=budget)
-            if isinstance(single, Plan):
-                yield single, PlannedAlone(name, len(request.goals), last.reason)
-                return
-    yield last, None
-
-
-def solve_goals(planner: Planner, request: PlanRequest,
-                budget: Budget) -> tuple[Plan | NoPlan | None, PlannedAlone | None]:
-    """The last (best) of `anytime_answers`: what a caller that can wait for the whole budget takes."""
-    best: tuple[Plan | NoPlan | None, PlannedAlone | None] = (None, None)
-    for answer, note in anytime_answers(planner, request, budget):
-        best = (answer, note if note is not None else best[1])
-    return best
-
-
-FIRST_ANSWER_S = 3.0  # the satisficing member's wall-clock limit (it answers well inside it)
-IMPROVE_S = 10.0  # then A* and the symbolic member, unless a newer request comes
-HOLD_S = 0.15  # a warm A* may replace the first answer by a shortest plan this soon
-
-
-def live_budget(first_seconds: float = FIRST_ANSWER_S, improve_seconds: float = IMPROVE_S,
-                hold_seconds: float = HOLD_S, stop: Callable[[], bool] | None = None) -> Budget:
-    """Wall-clock limits for a live controller: the satisficing member answers well inside `first_seconds`."""
-    return Budget(first_expansions=1_000_000, improve_expansions=1_000_000, symbolic_layers=100_000,
-                  seconds=first_seconds, improve_seconds=improve_seconds, hold_seconds=hold_seconds, stop=stop)
-
-
-# Counts only: in virtual time a seed reproduces a run on any machine. No improvement by default: A*'s
-# tables for each new goal set cost about a second to build, which is most of an in-process run's time.
-VIRTUAL_BUDGET = Budget(first_expansions=20_000, improve_expansions=0, symbolic_layers=500)
 
 
 class ControlCore:

@@ -6,21 +6,18 @@ builds the same model, supervisor and planner once, keeps its caches warm across
 requests, and streams its answers to each request: the first valid plan as soon as the
 satisficing member has one, then each shorter plan the portfolio finds.
 
-A newer request preempts the improvement of an older one at once: the controller follows
-each request with a signal, and while the worker improves an answer already sent (A*
-building its tables for a new goal set takes up to a second, in loops that look at no
-clock) the signal ends that work where it is (`preemption.py`). The first answer is never
-preempted, so every request gets one; the improvement's half-built tables are dropped.
+A newer request preempts the improvement of an older one: the searches and the table builders
+look at the request pipe as they go (`preemption.py`) and end at their next safe point, keeping
+every table they had finished and none half built. The first answer is never preempted, so
+every request gets one.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
 import logging
 import multiprocessing
-import os
 import threading
 import time
 from collections.abc import AsyncIterator
@@ -29,9 +26,10 @@ from multiprocessing.connection import Connection
 
 from common.wire.ctl import PlannedAlone
 
-from .control import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, PlanRequest, anytime_answers, live_budget
+from .control import PlanRequest
 from .planner import NoPlan, Plan, Planner
-from .preemption import PREEMPT_SIGNAL, Preempted, Preemption
+from .planner.policy import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, anytime_answers, live_budget
+from .preemption import NewerRequest
 
 log = logging.getLogger(__name__)
 
@@ -58,44 +56,43 @@ class Answer:
 
 @dataclass(frozen=True)
 class Ready:
-    """The worker's tables are built and it takes requests (and preemption signals)."""
+    """The worker's tables are built and it takes requests."""
 
     seconds: float
 
 
 def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Connection, answers: Connection,
-            preemption: Preemption, graveyard: list[object]) -> None:
-    """Stream the answers to one request until the portfolio is done or a newer request waits. What a
-    preempted search left behind (`graveyard`) is freed once this request has its first answer."""
-    budget = live_budget(limits.first_seconds, limits.improve_seconds, limits.hold_seconds, stop=requests.poll)
+            graveyard: list[object]) -> bool:
+    """Stream the answers to one request until the portfolio is done or a newer request waits; True when
+    a newer request ended the improvement. What a stopped search left (`graveyard`: its open list and
+    closed states) is freed once the next request has its first answer."""
+    newer = NewerRequest(requests)
+    leftovers: list[object] = []
+    budget = live_budget(limits.first_seconds, limits.improve_seconds, limits.hold_seconds, stop=newer,
+                         leftovers=leftovers)
     found = anytime_answers(planner, request, budget)
-    first = True
     try:
-        while True:
-            with preemption.allowed(not first):  # improving an answer already sent: a newer request ends it
-                item = next(found, None)
-            if item is None:
-                return
-            answers.send(Answer(request.generation, *item))
-            first = False
+        for plan, note in found:
+            answers.send(Answer(request.generation, plan, note))
+            newer.arm()
             graveyard.clear()
             if requests.poll():
-                return
+                return True
+        return newer.stopped
     finally:
         found.close()
+        graveyard += leftovers
 
 
 def quiet_collector() -> None:
     """The model and its tables live as long as the worker: out of the collector's passes. A search
     allocates millions of short-lived objects; with the default thresholds the collector took 16 % of
-    a search's time in passes of up to 100 ms, during which no preemption signal is handled either."""
+    a search's time in passes of up to 100 ms, during which a newer request waits too."""
     gc.freeze()
     gc.set_threshold(*COLLECTOR_THRESHOLDS)
 
 
 def _serve(requests: Connection, answers: Connection, model_reference: str, limits: Limits) -> None:
-    # Before anything slow: from the Ready message on, the controller signals every new request.
-    preemption = Preemption(requests)
     began = time.perf_counter()
     from common.stations import load_model
 
@@ -106,8 +103,8 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
     quiet_collector()
     answers.send(Ready(time.perf_counter() - began))
     served = 0
-    # A preempted search's frames (its open list, its closed states) and dropped tables: freeing them costs
-    # up to ~150 ms, which would come before the new request's first answer; they are kept until it is sent.
+    # A stopped search's open list and closed states: freeing them costs ~30 ms per second it searched,
+    # which would come before the newer request's first answer; they are kept until that is sent.
     graveyard: list[object] = []
     while True:
         if served % COLLECT_EVERY == COLLECT_EVERY - 1 and not requests.poll():
@@ -120,12 +117,7 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
             return
         preempted = False
         try:
-            _answer(planner, request, limits, requests, answers, preemption, graveyard)
-        except Preempted as interrupted:
-            # Wherever it stopped, the A* tables under construction may be half built: dropped. The
-            # traceback holds the interrupted frames and their locals: into the graveyard with the tables.
-            graveyard += [interrupted, *planner.forget_partial_work()]
-            preempted = True
+            preempted = _answer(planner, request, limits, requests, answers, graveyard)
         except Exception as exc:  # a planner bug must not stop the station: the controller reports it
             log.exception("planner failed")
             answers.send(Answer(request.generation, NoPlan(f"planner failed: {type(exc).__name__}: {exc}",
@@ -194,14 +186,6 @@ class PlannerProcess:
             answer = Answer(generation, NoPlan(why), final=True)
             loop.call_soon_threadsafe(self._deliver, answer)
 
-    def _preempt(self) -> None:
-        """Tell the worker a request is waiting (it ends an improvement under way; otherwise nothing)."""
-        process = self._process
-        if process is None or process.pid is None or not self._ready.is_set() or not process.is_alive():
-            return  # before Ready the worker's handler may not be installed: the signal would kill it
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(process.pid, PREEMPT_SIGNAL)
-
     async def answers(self, request: PlanRequest) -> AsyncIterator[Answer]:
         self._loop = asyncio.get_running_loop()
         if self._process is None or not self._process.is_alive():
@@ -211,8 +195,7 @@ class PlannerProcess:
         self._queues[request.generation] = queue
         try:
             assert self._send is not None
-            self._send.send(request)
-            self._preempt()
+            self._send.send(request)  # the worker sees it waiting and ends an improvement under way
             while True:
                 answer = await queue.get()
                 if answer.result is not None or not answer.final or answer.preempted:

@@ -1,47 +1,34 @@
-"""Ending the planner worker's improvement of an old request when a new one arrives.
+"""A newer plan request ends the planner worker's improvement of an older one, at a safe point.
 
-The improvement (A* building pattern databases for a new goal set, then searching) runs in
-loops that look at no clock and can take a second; a request that arrives meanwhile would
-wait for it. The controller follows every request with `PREEMPT_SIGNAL`; the worker's handler
-raises `Preempted` in the worker's main thread only inside an `allowed()` section and only when
-a request is really waiting, so a stray or late signal changes nothing.
+The worker gives each request's budget a `NewerRequest` as its stop test: it looks at the request pipe
+(a poll; nothing is read). The searches ask it every so many expansions and return; the table builders
+(A*'s projections and distance tables, the symbolic member's encoding) ask it per unit of work and
+raise `Stopped`, but only while what they build is still their own, so nothing half built is kept
+(`controller/planner/stopping.py`). No signal is involved and the planner's caches stay warm.
 
-`Preempted` derives from BaseException so that no `except Exception` on the way swallows it.
-Whatever the interrupted code was building may be half done: the caller drops those tables
-(`Planner.forget_partial_work`).
+The first answer is never stopped, so every request gets one: the test says "stop" only once armed,
+after that answer is sent. The controller sends a newer request only after the first answer anyway.
 """
 
 from __future__ import annotations
 
-import contextlib
-import signal
-from collections.abc import Iterator
 from multiprocessing.connection import Connection
-from types import FrameType
-
-PREEMPT_SIGNAL = signal.SIGUSR1
 
 
-class Preempted(BaseException):
-    """A newer plan request is waiting: the improvement under way ends here."""
+class NewerRequest:
+    """The stop test of one request's work: armed, true as soon as a newer request waits."""
 
-
-class Preemption:
     def __init__(self, requests: Connection) -> None:
         self._requests = requests
-        self._allowed = False
-        signal.signal(PREEMPT_SIGNAL, self._on_signal)
+        self._armed = False
+        self.stopped = False  # it said "stop" at least once: the work under way ended early
 
-    def _on_signal(self, _signum: int, _frame: FrameType | None) -> None:
-        if self._allowed and self._requests.poll():
-            self._allowed = False
-            raise Preempted
+    def arm(self) -> None:
+        """The first answer is out: from now on a newer request ends the improvement."""
+        self._armed = True
 
-    @contextlib.contextmanager
-    def allowed(self, allowed: bool = True) -> Iterator[None]:
-        """Inside: a signal with a request waiting raises Preempted (when `allowed`)."""
-        self._allowed = allowed
-        try:
-            yield
-        finally:
-            self._allowed = False
+    def __call__(self) -> bool:
+        if self._armed and self._requests.poll():
+            self.stopped = True
+            return True
+        return False

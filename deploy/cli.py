@@ -190,7 +190,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record,
                           chaos=args.chaos))
-    from controller.control import VIRTUAL_BUDGET
+    from controller.planner.policy import VIRTUAL_BUDGET
 
     from .local.inprocess import emulated_delays, run_in_process
 

@@ -240,7 +240,7 @@ def test_move_sets_images_and_preimages_are_the_engines(problem: properties.Prob
         fired = {(m.number, m.outcome) for m in planner.moves if cube & m.fire != enc.false}
         assert fired == offered, compiled.describe(state)
         successors = {compiled.transitions[n].outcomes[o](state) for n, o in offered}
-        image = planner._image(cube, None)
+        image = planner._image(cube)
         expected = enc.false
         for s in successors:
             expected |= enc.state(s)
@@ -250,7 +250,7 @@ def test_move_sets_images_and_preimages_are_the_engines(problem: properties.Prob
         expected = enc.false
         for s in predecessors[state]:
             expected |= enc.state(s)
-        assert planner._preimage(enc.state(state), None) & enc.valid == expected, compiled.describe(state)
+        assert planner._preimage(enc.state(state)) & enc.valid == expected, compiled.describe(state)
 
 
 @pytest.mark.slow

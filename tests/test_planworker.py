@@ -1,5 +1,6 @@
 """The planner process: ready before the controller plans, and a newer request preempts the improvement
-of an older one (controller/planworker.py, controller/preemption.py), with nothing half built kept."""
+of an older one at a safe point (controller/planworker.py, controller/preemption.py), with nothing half
+built kept."""
 
 from __future__ import annotations
 
@@ -76,8 +77,8 @@ async def test_a_newer_request_preempts_the_improvement_and_is_answered() -> Non
 
 
 async def test_a_request_while_nothing_is_improved_is_not_preempted() -> None:
-    """The signal that follows every request changes nothing when the worker is idle or still
-    looking for a first answer: each request gets its answers, none of them `preempted`."""
+    """Requests one after another, each arriving while the worker is idle: each gets its answers, none of
+    them `preempted`."""
     process = PlannerProcess(MODEL, Limits(first_seconds=30.0, improve_seconds=0.5, hold_seconds=0.0))
     try:
         assert await process.ready(60.0)

@@ -24,7 +24,7 @@ from common.wire.ctl import HubGone
 from controller.console.app import ConsoleApp
 from controller.console.gantt import NAME_WIDTH, gantt_lines
 from controller.console.station import StationInfo
-from controller.control import VIRTUAL_BUDGET
+from controller.planner.policy import VIRTUAL_BUDGET
 from controller.recording.reader import Run, open_run
 from controller.recording.schema import (
     CommandRecord,

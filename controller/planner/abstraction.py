@@ -26,8 +26,10 @@ from common.model import FALSE, TRUE, And, Const, Eq, In, IsTrue, Ne, Not, Or, P
 from common.model.compiled import CompiledTransition, State, predicate_source
 
 from .steps import StepSystem
+from .stopping import StopTest, check_stop
 
 INF = 1 << 40
+CHECK_EVERY_STATES = 4096  # abstract states handled between two stop checks in a loop over all of them
 
 
 # --- predicates, approximated ------------------------------------------------------------
@@ -201,7 +203,7 @@ class Abstraction:
         return result
 
     def _effects(
-        self, t: CompiledTransition, outcome: int, condition: Predicate = TRUE
+        self, t: CompiledTransition, outcome: int, condition: Predicate = TRUE, stop: StopTest | None = None
     ) -> Iterable[tuple[list[int], int, list[int]]]:
         """(positions, pre offset, post offsets) for every local assignment where the guard can hold."""
         guard = approximate(And((self.system.compiled.guard_of(t.source), condition)), self.keep)
@@ -224,7 +226,9 @@ class Abstraction:
         )
         place = {k: n for n, k in enumerate(positions)}
         test = self._test(guard, positions)
-        for vals, combo, offset in self._local(positions):
+        for looked, (vals, combo, offset) in enumerate(self._local(positions)):
+            if looked % CHECK_EVERY_STATES == CHECK_EVERY_STATES - 1:
+                check_stop(stop)
             if not test(vals):
                 continue
             choices = []
@@ -240,13 +244,16 @@ class Abstraction:
             yield positions, offset, posts
 
     # --- urgency ------------------------------------------------------------------------------
-    def urgent_after(self) -> list[int]:
+    # Every table below is built into locals and stored whole after the builder's last stop check
+    # (`stopping.py`): a stopped build leaves the abstraction as it was.
+    def urgent_after(self, stop: StopTest | None = None) -> list[int]:
         """Per abstract state, the model-order position of the first automatic transition certainly enabled
         there (len(automatic) when none): only automatics at or before it can fire."""
         if self._urgent_after is None:
             automatic = self.system.automatic
             urgent = [len(automatic)] * self.size
             for position in reversed(range(len(automatic))):
+                check_stop(stop)
                 certain = approximate(self.system.compiled.guard_of(automatic[position].source), self.keep, over=False)
                 for x in self.states_where(certain):
                     urgent[x] = position
@@ -262,22 +269,28 @@ class Abstraction:
     def cost(self, t: CompiledTransition) -> int:
         return 1 if self.costed is None or t.number in self.costed else 0
 
-    def predecessors(self) -> tuple[list[list[int]], list[list[int]]]:
+    def predecessors(self, stop: StopTest | None = None) -> tuple[list[list[int]], list[list[int]]]:
         """Backward adjacency over the relevant transitions (self-loops left out): (cost 1, cost 0) edges."""
         if self._predecessors is None:
             costly: list[list[int]] = [[] for _ in range(self.size)]
             free_edges: list[list[int]] = [[] for _ in range(self.size)]
             blocked = self.blocked
-            urgent = self.urgent_after()
+            urgent = self.urgent_after(stop)
+            work = 0  # since the last stop check: candidate edges, and a local assignment costs as much as ~64
             for t in self.relevant:
                 pred = costly if self.cost(t) else free_edges
                 threshold = self.threshold(t)
                 for outcome in range(len(t.outcomes)):
-                    for positions, pre, posts in self._effects(t, outcome):
+                    for positions, pre, posts in self._effects(t, outcome, TRUE, stop):
                         free = self.free_offsets(positions)
+                        work += 64
                         for post in posts:
                             if post == pre:
                                 continue
+                            work += len(free)
+                            if work >= CHECK_EVERY_STATES:
+                                check_stop(stop)
+                                work = 0
                             for f in free:
                                 x, y = pre + f, post + f
                                 if not blocked[x] and not blocked[y] and urgent[x] >= threshold:
@@ -285,37 +298,44 @@ class Abstraction:
             self._predecessors = (costly, free_edges)
         return self._predecessors
 
-    def successors(self) -> list[list[int]]:
+    def successors(self, stop: StopTest | None = None) -> list[list[int]]:
         if self._successors is None:
             succ: list[list[int]] = [[] for _ in range(self.size)]
-            for pred in self.predecessors():
+            for pred in self.predecessors(stop):
                 for y, xs in enumerate(pred):
+                    if y % CHECK_EVERY_STATES == 0:
+                        check_stop(stop)
                     for x in xs:
                         succ[x].append(y)
             self._successors = succ
         return self._successors
 
-    def reach_from_initial(self) -> None:
+    def reach_from_initial(self, stop: StopTest | None = None) -> None:
         """The states reachable from the model's initial state: most starts the controller plans from."""
         if self._initial_index is None:
-            self._initial_index = self.index(self.system.compiled.initial())
-            self.reach_from(self._initial_index)
+            initial = self.index(self.system.compiled.initial())
+            self.reach_from(initial, stop)
+            self._initial_index = initial
 
-    def reach_from(self, state: int) -> bool:
+    def covers(self, state: int) -> bool:
+        """`reachable` already holds what `reach_from_initial` and `reach_from(state)` would add."""
+        return self._initial_index is not None and bool(self.reachable[state] or self.blocked[state])
+
+    def reach_from(self, state: int, stop: StopTest | None = None) -> bool:
         """Extend `reachable` by the abstract states reachable from `state`; True if it grew.
 
         Images of achievers are restricted to these: a plan only passes through states reachable from its
         start, and the guard of an achiever alone would allow combinations that never occur (a robot sent to
         one pose while standing three poses away).
         """
-        reachable = self.reachable
-        if reachable[state] or self.blocked[state]:
+        if self.reachable[state] or self.blocked[state]:
             return False
-        succ = self.successors()
+        succ = self.successors(stop)
+        reachable = bytearray(self.reachable)
         reachable[state] = 1
-        self.reachable_version += 1
         frontier = [state]
         while frontier:
+            check_stop(stop)
             following = []
             for x in frontier:
                 for y in succ[x]:
@@ -323,20 +343,29 @@ class Abstraction:
                         reachable[y] = 1
                         following.append(y)
             frontier = following
+        self.reachable, self.reachable_version = reachable, self.reachable_version + 1
         return True
 
-    def _reachable_predecessors(self) -> tuple[list[list[int]], list[list[int]]]:
+    def _reachable_predecessors(self, stop: StopTest | None) -> tuple[list[list[int]], list[list[int]]]:
         """`predecessors` without the states no start reaches (rebuilt when the reachable set grows)."""
         if self._restricted_version != self.reachable_version:
             reachable = self.reachable
-            self._restricted = tuple(  # type: ignore[assignment]
-                [[x for x in xs if reachable[x]] if reachable[y] else [] for y, xs in enumerate(pred)]
-                for pred in self.predecessors()
-            )
+            restricted: list[list[list[int]]] = []
+            for pred in self.predecessors(stop):
+                kept: list[list[int]] = []
+                work = 0
+                for y, xs in enumerate(pred):
+                    work += 1 + len(xs)
+                    if work >= CHECK_EVERY_STATES:
+                        check_stop(stop)
+                        work = 0
+                    kept.append([x for x in xs if reachable[x]] if reachable[y] else [])
+                restricted.append(kept)
+            self._restricted = (restricted[0], restricted[1])
             self._restricted_version = self.reachable_version
         return self._restricted
 
-    def _condensed(self) -> tuple[list[int], list[list[int]], list[list[int]]]:
+    def _condensed(self, stop: StopTest | None) -> tuple[list[int], list[list[int]], list[list[int]]]:
         """The reachable states with every strongly connected set of free (cost 0) edges merged into one node:
         (node of each state, -1 if unreachable; costly and free predecessor lists between nodes).
 
@@ -344,12 +373,14 @@ class Abstraction:
         cycles; merging them makes each of the many distance tables of a projection cheap.
         """
         if self._condensed_version != self.reachable_version:
-            costly, free = self._reachable_predecessors()
-            component = _components(self.reachable, free)
+            costly, free = self._reachable_predecessors(stop)
+            component = _components(self.reachable, free, stop)
             count = max(component, default=-1) + 1
             node_costly: list[set[int]] = [set() for _ in range(count)]
             node_free: list[set[int]] = [set() for _ in range(count)]
             for y, c in enumerate(component):
+                if y % CHECK_EVERY_STATES == 0:
+                    check_stop(stop)
                 if c < 0:
                     continue
                 for x in free[y]:
@@ -358,11 +389,13 @@ class Abstraction:
                 for x in costly[y]:
                     if component[x] != c:
                         node_costly[c].add(component[x])
+            check_stop(stop)
             self._condensation = (component, [list(n) for n in node_costly], [list(n) for n in node_free])
             self._condensed_version = self.reachable_version
         return self._condensation
 
-    def distances(self, key: object, sources: Callable[[], Iterable[tuple[int, int]]]) -> list[int]:
+    def distances(self, key: object, sources: Callable[[], Iterable[tuple[int, int]]],
+                  stop: StopTest | None = None) -> list[int]:
         """Backward 0-1 breadth-first distances to goal states, each with its own initial cost.
 
         Only over the states reachable from the starts seen so far (`reach_from`): a path from such a
@@ -372,20 +405,25 @@ class Abstraction:
         key = (key, self.reachable_version)
         table = self._distances.get(key)
         if table is None:
-            component, costly, free = self._condensed()
+            component, costly, free = self._condensed(stop)
             node_table = [INF] * len(costly)
             layers: dict[int, list[int]] = {}
-            for g, c in sources():
+            for n, (g, c) in enumerate(sources()):
+                if n % CHECK_EVERY_STATES == 0:
+                    check_stop(stop)
                 node = component[g]
                 if node >= 0 and c < node_table[node]:
                     node_table[node] = c
                     layers.setdefault(c, []).append(node)
             depth = min(layers, default=0)
             while layers:
+                check_stop(stop)
                 frontier = layers.pop(depth, [])
                 following = layers.setdefault(depth + 1, [])
                 i = 0
                 while i < len(frontier):
+                    if i % CHECK_EVERY_STATES == 0:
+                        check_stop(stop)
                     y = frontier[i]
                     i += 1
                     if node_table[y] != depth:
@@ -407,21 +445,23 @@ class Abstraction:
             self._distances[key] = table
         return table
 
-    def enabled_states(self, t: CompiledTransition, outcome: int, condition: Predicate) -> list[int]:
+    def enabled_states(self, t: CompiledTransition, outcome: int, condition: Predicate,
+                       stop: StopTest | None = None) -> list[int]:
         """States where the abstract guard of (t, outcome) and `condition` can hold."""
         result: list[int] = []
-        blocked, urgent, threshold = self.blocked, self.urgent_after(), self.threshold(t)
-        for positions, pre, _ in self._effects(t, outcome, condition):
+        blocked, urgent, threshold = self.blocked, self.urgent_after(stop), self.threshold(t)
+        for positions, pre, _ in self._effects(t, outcome, condition, stop):
             result.extend(
                 x for x in (pre + f for f in self.free_offsets(positions)) if not blocked[x] and urgent[x] >= threshold
             )
         return result
 
-    def firings(self, t: CompiledTransition, outcome: int, condition: Predicate) -> list[tuple[int, int]]:
+    def firings(self, t: CompiledTransition, outcome: int, condition: Predicate,
+                stop: StopTest | None = None) -> list[tuple[int, int]]:
         """(state before, state after) for every abstract firing of (t, outcome) where `condition` holds."""
         result: list[tuple[int, int]] = []
-        blocked, urgent, threshold = self.blocked, self.urgent_after(), self.threshold(t)
-        for positions, pre, posts in self._effects(t, outcome, condition):
+        blocked, urgent, threshold = self.blocked, self.urgent_after(stop), self.threshold(t)
+        for positions, pre, posts in self._effects(t, outcome, condition, stop):
             free = self.free_offsets(positions)
             for post in posts:
                 result.extend(
@@ -444,7 +484,7 @@ class Abstraction:
         return result
 
 
-def _components(present: bytearray, edges: list[list[int]]) -> list[int]:
+def _components(present: bytearray, edges: list[list[int]], stop: StopTest | None) -> list[int]:
     """Strongly connected components (iterative Tarjan) of the graph y -> edges[y] over `present` states;
     -1 for the others."""
     size = len(edges)
@@ -455,6 +495,7 @@ def _components(present: bytearray, edges: list[list[int]]) -> list[int]:
     stack: list[int] = []
     counter = 0
     count = 0
+    steps = 0  # of the depth-first walk: one stop check per CHECK_EVERY_STATES
     for root in range(size):
         if not present[root] or index[root] >= 0:
             continue
@@ -464,6 +505,9 @@ def _components(present: bytearray, edges: list[list[int]]) -> list[int]:
         stack.append(root)
         on_stack[root] = 1
         while work:
+            steps += 1
+            if steps % CHECK_EVERY_STATES == 0:
+                check_stop(stop)
             v, i = work[-1]
             successors = edges[v]
             if i < len(successors):

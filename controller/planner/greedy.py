@@ -16,14 +16,13 @@ machine); a wall-clock deadline may stop it earlier.
 from __future__ import annotations
 
 import heapq
-import time
 from collections.abc import Callable
 
 from common.model.compiled import State
 
 from .abstraction import INF
 from .relaxed import Estimate
-from .search import AUTOMATICS_AT_START, Parents, SearchResult, path_to
+from .search import Parents, SearchEnd, SearchResult, out_of_time, path_to
 from .steps import Move, StateTest, StepSystem, Successor, settle
 
 BOOST = 1000  # expansions from the preferred list after each new best h
@@ -44,9 +43,9 @@ def greedy(
     """Some move sequence from `start` (not forbidden, not a goal) to a goal state, or why none was found."""
     settled = settle(system, start, goal, forbidden)
     if settled is None:
-        return SearchResult(None, reason=AUTOMATICS_AT_START)
+        return SearchResult(None, SearchEnd.AUTOMATICS_AT_START)
     if isinstance(settled, Successor):
-        return SearchResult(list(settled.moves))
+        return SearchResult(list(settled.moves), SearchEnd.FOUND)
     root, prefix = settled
     parent: Parents = {}
     # entries: (h of the parent, order, state, its parent link)
@@ -74,9 +73,10 @@ def greedy(
         if estimate.h >= INF:
             continue
         expanded += 1
-        if expanded > max_expansions or (expanded % CHECK_EVERY == 0 and (
-                (deadline is not None and time.perf_counter() > deadline) or (stop is not None and stop()))):
-            return SearchResult(None, expanded, generated, timed_out=True)
+        if expanded > max_expansions or expanded % CHECK_EVERY == 0:
+            end = out_of_time(expanded, max_expansions, deadline, stop)
+            if end is not None:
+                return SearchResult(None, end, expanded, generated)
         if estimate.h < best_h:
             best_h = estimate.h
             priority = BOOST
@@ -84,7 +84,7 @@ def greedy(
         for succ in system.successors(state, goal, forbidden):
             generated += 1
             if succ.goal:
-                return SearchResult(prefix + path_to(parent, state, succ.moves), expanded, generated)
+                return SearchResult(prefix + path_to(parent, state, succ.moves), SearchEnd.FOUND, expanded, generated)
             if succ.state in parent:
                 continue
             order += 1
@@ -93,5 +93,4 @@ def greedy(
                 push(lists[0], entry)
             push(lists[1], entry)
     # Nothing expanded: the root itself is a dead end of the relaxation.
-    reason = "exhausted" if expanded else "heuristic"
-    return SearchResult(None, expanded, generated, reason=reason)
+    return SearchResult(None, SearchEnd.EXHAUSTED if expanded else SearchEnd.DEAD_END, expanded, generated)

@@ -37,6 +37,7 @@ from common.model.compiled import CompiledTransition, State, predicate_source
 
 from .abstraction import INF, Abstraction, rename
 from .steps import StepSystem
+from .stopping import StopTest, check_stop
 from .tours import Achiever, TourGroup, generate
 
 DEFAULT_CAP = 12_000  # the largest projection, in abstract states (cold builds grow with it)
@@ -95,16 +96,20 @@ class ConjunctionGroup:
         self.index = abstraction.index
         self._version = -1
 
-    def prepare(self, start: State) -> None:
+    def prepare(self, start: State, stop: StopTest | None = None) -> None:
         abstraction = self.abstraction
-        abstraction.reach_from_initial()
-        abstraction.reach_from(self.index(start))
+        abstraction.reach_from_initial(stop)
+        abstraction.reach_from(self.index(start), stop)
         if self._version != abstraction.reachable_version:
             if self._goal_states is None:
                 self._goal_states = abstraction.states_where(self.goal)
             goal_states = self._goal_states
-            self.table = abstraction.distances(("holds", self.goal), lambda: ((x, 0) for x in goal_states))
+            self.table = abstraction.distances(("holds", self.goal), lambda: ((x, 0) for x in goal_states), stop)
             self._version = abstraction.reachable_version
+
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing."""
+        return self.abstraction.covers(self.index(start)) and self._version == self.abstraction.reachable_version
 
     def value(self, s: State) -> int:
         return self.table[self.index(s)]
@@ -143,7 +148,9 @@ class GoalHeuristic:
         goals: Sequence[Predicate],
         abstraction: Callable[[tuple[int, ...], frozenset[int]], Abstraction],
         options: HeuristicOptions | None = None,
+        stop: StopTest | None = None,
     ) -> None:
+        """`stop` ends the build (`stopping.Stopped`): the owner stores the heuristic only once it is built."""
         began = time.perf_counter()
         self.options = options or HeuristicOptions()
         compiled = system.compiled
@@ -162,6 +169,7 @@ class GoalHeuristic:
         tour: list[tuple[Predicate, list[Achiever]]] = []
         inside: list[Predicate] = []
         for atom in self.atoms:
+            check_stop(stop)
             paths = atom.paths()
             if self.options.tours and len(paths) == 1:
                 (path,) = paths
@@ -184,21 +192,23 @@ class GoalHeuristic:
         wholes = (False, True) if self.options.patterns > 1 else (False,)
         family_depths = {seed: self._depths((), seed, excluded) for seed in families}
         for enabling in (True, False) if landmarks else (False,):
-            merged = self._merge([*inside, *landmarks] if enabling else inside, excluded)
+            merged = self._merge([*inside, *landmarks] if enabling else inside, excluded, stop)
             merged_depths = [self._depths(required, (), excluded) for required, _ in merged]
             for whole in wholes:
                 plans: list[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate],
                                   bool]] = []
                 depths: list[dict[int, int]] = []
                 for seed, members in families.items():
+                    check_stop(stop)
                     for v in self._patterns((), seed, excluded, whole):
                         plans.append((v, members, True))
                         depths.append(family_depths[seed])
                 for (required, atoms), depth in zip(merged, merged_depths, strict=True):
+                    check_stop(stop)
                     for v in self._patterns(required, (), excluded, whole):
                         plans.append((v, atoms, False))
                         depths.append(depth)
-                self._candidates.append(self._groups(plans, depths, abstraction))
+                self._candidates.append(self._groups(plans, depths, abstraction, stop))
         self.groups = self._candidates[0]
         self._unsatisfied = generate(
             " + ".join(f"(not {predicate_source(a, index)})" for a in self.atoms) + " + 0" if self.atoms else "0"
@@ -216,17 +226,19 @@ class GoalHeuristic:
         plans: Sequence[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate], bool]],
         depths: Sequence[dict[int, int]],
         abstraction: Callable[[tuple[int, ...], frozenset[int]], Abstraction],
+        stop: StopTest | None,
     ) -> list[Group]:
         groups: list[Group] = []
         index = self.system.compiled.index
         for (variables, members, is_tour), costs in zip(plans, self._partition(plans, depths), strict=True):
+            check_stop(stop)
             if not costs:
                 continue
             writing = frozenset(self._written_by(variables))
             if is_tour:
                 groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],  # type: ignore[misc]
                                         [f for _, f in members], index, costs, self.options.arborescence,  # type: ignore[misc]
-                                        self.options.potential))
+                                        self.options.potential, stop))
             else:
                 groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))  # type: ignore[arg-type]
         return groups
@@ -397,7 +409,8 @@ class GoalHeuristic:
                 break
         return patterns
 
-    def _merge(self, atoms: list[Predicate], excluded: set[int]) -> list[tuple[tuple[int, ...], list[Predicate]]]:
+    def _merge(self, atoms: list[Predicate], excluded: set[int],
+               stop: StopTest | None) -> list[tuple[tuple[int, ...], list[Predicate]]]:
         """Inside atoms merged greedily while their cones fit under the cap: (their variables, atoms)."""
         domains = self.system.compiled.domains
         index = self.system.compiled.index
@@ -410,6 +423,7 @@ class GoalHeuristic:
 
         merged: list[tuple[set[int], set[int], list[Predicate]]] = []  # (own variables, cone, atoms)
         for atom in atoms:
+            check_stop(stop)
             own = sorted(index[p] for p in atom.paths())
             # Merged on their cores (the atom's variables and what their writers read): the operator's
             # three filters share one small pattern instead of each filling its own up to the cap.
@@ -436,27 +450,34 @@ class GoalHeuristic:
         return [(tuple(sorted(own)), members) for own, _, members in merged]
 
     # --- evaluation --------------------------------------------------------------------------
-    def prepare(self, start: State) -> None:
+    def prepare(self, start: State, stop: StopTest | None = None) -> None:
         """Call before evaluating states reachable from `start`: the tables cover the reachable states only.
 
         The first call also picks, of the candidate pattern collections, the one with the larger value at
-        `start` (both are admissible); the other is dropped.
+        `start` (both are admissible); the other is dropped. `stop` ends the preparation
+        (`stopping.Stopped`); each group stores its tables whole, so a later call goes on from there.
         """
         if len(self._candidates) > 1:
             best = -1
             for groups in self._candidates:
                 for g in groups:
-                    g.prepare(start)
-                self.groups = groups
-                value = self(start)
+                    g.prepare(start, stop)
+                value = self._value(groups, start)
                 if value > best:
                     best, chosen = value, groups
             self.groups = chosen
             self._candidates = [chosen]
         for g in self.groups:
-            g.prepare(start)
+            g.prepare(start, stop)
+
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing: a search from `start` costs no table build."""
+        return len(self._candidates) == 1 and all(g.ready_for(start) for g in self.groups)
 
     def __call__(self, s: State) -> int:
+        return self._value(self.groups, s)
+
+    def _value(self, groups: Sequence[Group], s: State) -> int:
         if self.impossible:
             return INF
         unsatisfied: int = self._unsatisfied(s)  # type: ignore[assignment]
@@ -466,7 +487,7 @@ class GoalHeuristic:
             return INF
         best = -(-unsatisfied // self.per_step)
         total = 0
-        for g in self.groups:
+        for g in groups:
             total += g.value(s)
         if total > best:
             best = total

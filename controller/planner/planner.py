@@ -22,10 +22,11 @@ from common.model.compiled import CompiledModel, State
 from .abstraction import Abstraction
 from .heuristics import GoalHeuristic, HeuristicOptions
 from .plans import NoPlan, Plan, PlanStats, PlanStep, moves_of
-from .portfolio import Budget, _Run
+from .portfolio import Budget, PortfolioRun
 from .relaxed import RelaxedModel
 from .reuse import PlanMemory
-from .steps import RaceCheck, StepSystem, stable_goal
+from .steps import Move, RaceCheck, StateTest, StepSystem, stable_goal
+from .stopping import StopTest
 from .symbolic import SymbolicPlanner
 from .validate import PlanInvalid, check_plan, plan_from_moves
 
@@ -37,7 +38,9 @@ ABSTRACTION_CACHE = 96
 class Planner:
     """Plans for one compiled model and forbidden predicate; caches projections and heuristics across calls.
 
-    `plan` may run in a worker thread; calls are serialized by a lock (the caches are shared).
+    `plan` may run in a worker thread; calls are serialized by a lock (the caches are shared). Its public
+    methods are what a portfolio run uses (`portfolio.PlannerTables`). A table built under a stop test
+    (a newer request) is stored only once built whole: a stopped request leaves every cache as it was.
     """
 
     def __init__(
@@ -52,7 +55,7 @@ class Planner:
         self.forbidden = forbidden
         self.options = options or HeuristicOptions()
         self.max_subset = max_subset
-        self._is_forbidden = compiled.predicate(forbidden) if forbidden is not None else None
+        self.is_forbidden: StateTest | None = compiled.predicate(forbidden) if forbidden is not None else None
         self._lock = threading.Lock()
         self._predicates: dict[Predicate, Callable[[State], bool]] = {}
         self._steps: dict[tuple[int, int], PlanStep] = {}
@@ -67,16 +70,16 @@ class Planner:
         self.memory = PlanMemory(compiled)
 
     # --- caches -----------------------------------------------------------------------------
-    def _race(self, disabled: frozenset[str]) -> RaceCheck:
+    def race_check(self, disabled: frozenset[str]) -> RaceCheck:
         race = self._races.get(disabled)
         if race is None:
             race = self._races[disabled] = RaceCheck(self.compiled, disabled)
         return race
 
-    def _system(self, disabled: frozenset[str]) -> StepSystem:
+    def step_system(self, disabled: frozenset[str]) -> StepSystem:
         system = self._systems.get(disabled)
         if system is None:
-            system = self._systems[disabled] = StepSystem(self.compiled, disabled, self._race(disabled))
+            system = self._systems[disabled] = StepSystem(self.compiled, disabled, self.race_check(disabled))
         return system
 
     def prepare(self, disabled: frozenset[str] = frozenset()) -> float:
@@ -89,15 +92,15 @@ class Planner:
     def relaxed(self, disabled: frozenset[str]) -> RelaxedModel:
         found = self._relaxed.get(disabled)
         if found is None:
-            found = self._relaxed[disabled] = RelaxedModel(self._system(disabled))
+            found = self._relaxed[disabled] = RelaxedModel(self.step_system(disabled))
         return found
 
-    def symbolic(self, disabled: frozenset[str]) -> SymbolicPlanner | None:
+    def symbolic(self, disabled: frozenset[str], stop: StopTest | None = None) -> SymbolicPlanner | None:
         """The symbolic member for this set of disabled resources, built on first use (its BDD encoding
         takes a few hundred milliseconds; it is asked only when greedy and A* settled nothing)."""
         found = self._symbolic.get(disabled)
         if found is None:
-            found = self._symbolic[disabled] = SymbolicPlanner(self.compiled, self.forbidden, disabled)
+            found = self._symbolic[disabled] = SymbolicPlanner(self.compiled, self.forbidden, disabled, stop)
         return found
 
     def goal_test(self, goal: Predicate) -> Callable[[State], bool]:
@@ -108,17 +111,22 @@ class Planner:
             is_goal = self._predicates[goal] = self.compiled.predicate(goal)
         return is_goal
 
-    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str]) -> bool:
-        """The A* tables for these goals are built (a search with them costs no cold build)."""
-        return (disabled, goals) in self._heuristics
+    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str], start: State) -> bool:
+        """The A* tables for these goals are built for `start` (a search from it costs no table build; a
+        stopped build or preparation leaves them not ready, to be completed by the next one)."""
+        heuristic = self._heuristics.get((disabled, goals))
+        return heuristic is not None and heuristic.ready_for(start)
 
-    def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset()) -> GoalHeuristic:
+    def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset(),
+                  stop: StopTest | None = None) -> GoalHeuristic:
+        """A*'s heuristic for these goals, built on first use (`stop` may end the build: `stopping.Stopped`).
+        Its tables for a start are built by its `prepare`."""
         key = (disabled, goals)
         h = self._heuristics.get(key)
         if h is not None:
             self._heuristics.move_to_end(key)
             return h
-        system = self._system(disabled)
+        system = self.step_system(disabled)
 
         def abstraction(variables: tuple[int, ...], costed: frozenset[int]) -> Abstraction:
             akey = (disabled, variables, costed)
@@ -129,26 +137,21 @@ class Planner:
                 found = self._abstractions[akey] = Abstraction(system, variables, self.forbidden, costed)
             return found
 
-        h = GoalHeuristic(system, goals, abstraction, self.options)
+        h = GoalHeuristic(system, goals, abstraction, self.options, stop)
         self._heuristics[key] = h
         if len(self._heuristics) > HEURISTIC_CACHE:
             self._heuristics.popitem(last=False)
         return h
 
-    def forget_partial_work(self) -> tuple[object, ...]:
-        """After a search was interrupted at an arbitrary point (a preempted improvement): drop every table
-        such a search builds or extends in place (A*'s projections and heuristics, the symbolic member), so
-        nothing half built is used again. The step system, race answers, relaxed model and plan memory are
-        only ever replaced whole, never left half written, and stay warm.
-
-        Returns the dropped tables: freeing them takes tens of milliseconds, which the caller spends when
-        it has time (after its next first answer), not now."""
-        dropped = (self._abstractions, self._heuristics, self._symbolic)
-        self._abstractions, self._heuristics, self._symbolic = {}, OrderedDict(), {}
-        # Called by the single-threaded planner worker only: a lock still held was the interrupted search's.
-        if self._lock.locked():
-            self._lock.release()
-        return dropped
+    def checked_plan(self, start: State, moves: Sequence[Move], goals: tuple[str, ...], stats: PlanStats,
+                     is_goal: StateTest, disabled: frozenset[str]) -> Plan:
+        """The moves from `start` as a plan, checked by simulation with the engine's semantics (raises
+        `PlanInvalid` otherwise). The printed steps are kept across plans: printing a synthesized guard is
+        not cheap."""
+        plan = plan_from_moves(self.compiled, start, moves, goals, stats, self._steps)
+        check_plan(self.compiled, start, plan, is_goal, self.is_forbidden, disabled, "the goals",
+                   self.race_check(disabled))
+        return plan
 
     def clear_cache(self) -> None:
         with self._lock:
@@ -188,7 +191,7 @@ class Planner:
         """
         budget = budget or Budget()
         with self._lock:
-            run = _Run(self, start, tuple(goals), goals, frozenset(disabled), budget)
+            run = PortfolioRun(self, start, tuple(goals), goals, frozenset(disabled), budget)
             for answer in run.answers():
                 if isinstance(answer, Plan) and answer.steps:
                     self.memory.remember(run.key, answer)
@@ -210,8 +213,8 @@ class Planner:
         moves = moves_of(compiled, steps)
         plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
         try:
-            check_plan(compiled, start, plan, is_goal, self._is_forbidden, disabled, "the goals",
-                       self._race(disabled))
+            check_plan(compiled, start, plan, is_goal, self.is_forbidden, disabled, "the goals",
+                       self.race_check(disabled))
         except PlanInvalid:
             return None
         return Plan(plan.steps, plan.states, plan.goals, PlanStats("revalidated", time.perf_counter() - began))

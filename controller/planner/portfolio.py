@@ -13,29 +13,36 @@ Members, in order:
 Every plan is checked by simulation with the engine's semantics before it is yielded.
 Work is bounded by expansion counts (deterministic: what virtual time uses, so a seed
 reproduces a run) and, live, by wall-clock seconds and a `stop` test (a newer request).
+A stop ends the run at the next safe point (`stopping.py`): a search returns, a table build
+keeps nothing half built, and the run yields nothing more (a NoPlan if it had yielded nothing).
+
+A run uses its planner through `PlannerTables`: the model, its forbidden-state test, and the
+tables the planner keeps per set of disabled resources across requests.
 """
 
 from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from common.model import Predicate, all_of
-from common.model.compiled import State
+from common.model.compiled import CompiledModel, State
 
 from .abstraction import INF
 from .greedy import greedy
+from .heuristics import GoalHeuristic
 from .plans import NoPlan, Plan, PlanStats, moves_of
-from .search import SearchResult, astar
+from .relaxed import RelaxedModel
+from .reuse import PlanMemory
+from .search import SearchEnd, SearchResult, astar
 from .shorten import eliminate, without_loops
-from .steps import Move, stable_goal
-from .validate import PlanInvalid, check_plan, plan_from_moves
-
-if TYPE_CHECKING:
-    from .planner import Planner
+from .steps import Move, StateTest, StepSystem, stable_goal
+from .stopping import Stopped, StopTest
+from .symbolic import SymbolicPlanner
+from .validate import PlanInvalid
 
 ELIMINATION_FIRST = 4_000  # steps simulated while taking detours out of a first plan (about 40 ms)
 ELIMINATION_MORE = 100_000  # and again, before A*, when there is time to improve it
@@ -50,7 +57,9 @@ class Budget:
     length (0: keep the first plan); `symbolic_layers`: breadth-first layers of the symbolic
     member; `seconds`: wall clock for the first answer, `improve_seconds` for the improvement
     (None: no clock, only counts — virtual time); `hold_seconds`: how long the first answer may
-    wait for a warm A* to return a shortest plan instead; `stop`: a newer request is waiting.
+    wait for a warm A* to return a shortest plan instead; `stop`: a newer request is waiting
+    (the run ends at its next safe point); `leftovers`: where A* stopped by `stop` leaves its
+    tables, for the owner to free when it has time (freeing them is not instant).
     """
 
     first_expansions: int = 20_000
@@ -59,7 +68,29 @@ class Budget:
     seconds: float | None = None
     improve_seconds: float | None = None
     hold_seconds: float | None = None
-    stop: Callable[[], bool] | None = None
+    stop: StopTest | None = None
+    leftovers: list[object] | None = None
+
+
+class PlannerTables(Protocol):
+    """What a portfolio run uses of its planner (`planner.Planner`): the model, its forbidden-state test, and
+    the tables kept across requests. A table built with a `stop` test is stored only once it is whole."""
+
+    compiled: CompiledModel
+    forbidden: Predicate | None
+    is_forbidden: StateTest | None  # `forbidden` compiled; None: nothing is forbidden
+    memory: PlanMemory
+    max_subset: int
+
+    def step_system(self, disabled: frozenset[str]) -> StepSystem: ...
+    def relaxed(self, disabled: frozenset[str]) -> RelaxedModel: ...
+    def goal_test(self, goal: Predicate) -> StateTest: ...
+    def heuristic_ready(self, goals: tuple[Predicate, ...], disabled: frozenset[str], start: State) -> bool: ...
+    def heuristic(self, goals: tuple[Predicate, ...], disabled: frozenset[str] = frozenset(),
+                  stop: StopTest | None = None) -> GoalHeuristic: ...
+    def symbolic(self, disabled: frozenset[str], stop: StopTest | None = None) -> SymbolicPlanner | None: ...
+    def checked_plan(self, start: State, moves: Sequence[Move], goals: tuple[str, ...], stats: PlanStats,
+                     is_goal: StateTest, disabled: frozenset[str]) -> Plan: ...
 
 
 def _short(predicate: Predicate, limit: int = 160) -> str:
@@ -67,8 +98,10 @@ def _short(predicate: Predicate, limit: int = 160) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-class _Run:
-    def __init__(self, planner: Planner, start: State, names: tuple[str, ...], goals: Mapping[str, Predicate],
+class PortfolioRun:
+    """One request: `answers()` yields its plans, each shorter than the last, or a single NoPlan."""
+
+    def __init__(self, planner: PlannerTables, start: State, names: tuple[str, ...], goals: Mapping[str, Predicate],
                  disabled: frozenset[str], budget: Budget) -> None:
         self.planner = planner
         self.start = start
@@ -83,6 +116,7 @@ class _Run:
         self.build = 0.0
         self.first_seconds = 0.0
         self.first_length = -1
+        self.answered = False
 
     # --- helpers -------------------------------------------------------------------------------
     def _deadline(self, seconds: float | None) -> float | None:
@@ -93,29 +127,38 @@ class _Run:
                          minimal, self.first_seconds, self.first_length)
 
     def _count(self, found: SearchResult) -> None:
+        """Add a search's work to the run's; a search ended by the stop test ends the run."""
         self.expanded += found.expanded
         self.generated += found.generated
+        if found.end is SearchEnd.STOPPED:
+            raise Stopped
 
     def _plan(self, moves: list[Move], method: str, minimal: bool, is_goal: Callable[[State], bool]) -> Plan | NoPlan:
-        planner = self.planner
-        plan = plan_from_moves(planner.compiled, self.start, moves, self.names, self._stats(method, minimal),
-                               planner._steps)
+        stats = self._stats(method, minimal)
         try:
-            check_plan(planner.compiled, self.start, plan, is_goal, planner._is_forbidden, self.disabled,
-                       "the goals", planner._race(self.disabled))
+            return self.planner.checked_plan(self.start, moves, self.names, stats, is_goal, self.disabled)
         except PlanInvalid as exc:  # a planner bug: never hand such a plan to the engine
-            return NoPlan(f"internal error, the {method} plan failed validation: {exc}", (), plan.stats)
-        return plan
+            return NoPlan(f"internal error, the {method} plan failed validation: {exc}", (), stats)
 
     def _disabled_note(self) -> str:
         return f" (disabled resources left out: {', '.join(sorted(self.disabled))})" if self.disabled else ""
 
     # --- the portfolio -----------------------------------------------------------------------------
     def answers(self) -> Iterator[Plan | NoPlan]:
+        try:
+            for answer in self._answers():
+                self.answered = True
+                yield answer
+        except Stopped:  # at a safe point: nothing half built is left behind
+            if not self.answered:
+                yield NoPlan(f"{', '.join(self.names)}: stopped by a newer request before a plan was found",
+                             (), self._stats("portfolio"))
+
+    def _answers(self) -> Iterator[Plan | NoPlan]:
         planner, budget, start = self.planner, self.budget, self.start
         compiled = planner.compiled
         goal = all_of(*(self.goals[n] for n in self.names))
-        if planner._is_forbidden is not None and planner._is_forbidden(start):
+        if planner.is_forbidden is not None and planner.is_forbidden(start):
             yield NoPlan(f"the start state is forbidden ({_short(planner.forbidden)})",  # type: ignore[arg-type]
                          self.names, self._stats("none"))
             return
@@ -144,16 +187,19 @@ class _Run:
                 yield incumbent
                 return
             if budget.hold_seconds is not None and self.planner.heuristic_ready(
-                    tuple(self.goals[n] for n in self.names), self.disabled):
+                    tuple(self.goals[n] for n in self.names), self.disabled, start):
                 # Warm A* tables: a shortest plan may be a few milliseconds away; answer with it if so,
                 # rather than with a longer plan the station starts to follow at once.
-                better, _ = self._astar(goal, is_goal, incumbent, self.began + budget.hold_seconds)
+                try:
+                    better, _ = self._astar(goal, is_goal, incumbent, self.began + budget.hold_seconds)
+                except Stopped:  # the first answer is the plan in hand
+                    better = None
                 if better is not None:
                     yield better
                     return
             yield incumbent
             moves = moves_of(self.planner.compiled, incumbent.steps)
-            shorter = self._shortened(moves, is_goal, start, ELIMINATION_MORE)
+            shorter = self._shortened(moves, is_goal, start, ELIMINATION_MORE, budget.stop)
             if len(shorter) < len(moves):
                 plan = self._plan(shorter, "greedy", False, is_goal)
                 if isinstance(plan, Plan):
@@ -185,18 +231,18 @@ class _Run:
         return plan if isinstance(plan, Plan) else None
 
     def _shortened(self, moves: list[Move], is_goal: Callable[[State], bool], start: State,
-                   work: int = ELIMINATION_FIRST) -> list[Move]:
+                   work: int = ELIMINATION_FIRST, stop: StopTest | None = None) -> list[Move]:
         """A greedy plan minus its loops, then minus the detours action elimination finds."""
         planner = self.planner
-        return eliminate(planner._system(self.disabled), without_loops(planner.compiled, moves, start), start,
-                         is_goal, planner._is_forbidden, work)
+        return eliminate(planner.step_system(self.disabled), without_loops(planner.compiled, moves, start), start,
+                         is_goal, planner.is_forbidden, work, stop)
 
     def _agenda(self, expansions: int, deadline: float | None) -> list[Move] | None:
         """The goals one after another (FF's goal agenda): each search keeps the goals reached so far and
         adds the next one, so its relaxed plans stay short however many goals there are. None when a
         stage fails (it may have chosen an intermediate state from which the rest cannot be reached)."""
         planner = self.planner
-        system = planner._system(self.disabled)
+        system = planner.step_system(self.disabled)
         relaxed = planner.relaxed(self.disabled)
         state, moves, reached = self.start, [], []
         spent = 0
@@ -206,7 +252,7 @@ class _Run:
             is_goal = stable_goal(planner.compiled, planner.goal_test(goal), self.disabled)
             if is_goal(state):
                 continue
-            found = greedy(system, state, is_goal, planner._is_forbidden, relaxed.goal(goal).evaluate,
+            found = greedy(system, state, is_goal, planner.is_forbidden, relaxed.goal(goal).evaluate,
                            max_expansions=expansions - spent, deadline=deadline, stop=self.budget.stop)
             self._count(found)
             spent += found.expanded
@@ -228,9 +274,9 @@ class _Run:
                 moves = self._shortened(moves, is_goal, self.start)
                 return self._plan(moves, "greedy", False, is_goal), None
             expansions -= self.expanded - before
-        system = planner._system(self.disabled)
+        system = planner.step_system(self.disabled)
         relaxed = planner.relaxed(self.disabled).goal(goal)
-        found = greedy(system, self.start, is_goal, planner._is_forbidden, relaxed.evaluate,
+        found = greedy(system, self.start, is_goal, planner.is_forbidden, relaxed.evaluate,
                        max_expansions=expansions, deadline=deadline, stop=self.budget.stop)
         self._count(found)
         if found.moves is not None:
@@ -238,11 +284,11 @@ class _Run:
             return self._plan(moves, "greedy", False, is_goal), None
         if found.timed_out:
             return None, None
-        if found.reason == "heuristic":
+        if found.end is SearchEnd.DEAD_END:
             return None, "not reachable even when every value, once reached, is kept (relaxed planning graph)"
-        if found.reason == "exhausted":
+        if found.end is SearchEnd.EXHAUSTED:
             return None, f"unreachable ({found.expanded} reachable states explored)"
-        return None, found.reason
+        return None, found.end.value
 
     def _astar(self, goal: Predicate, is_goal: Callable[[State], bool], incumbent: Plan | None,
                deadline: float | None = None) -> tuple[Plan | NoPlan | None, str | None]:
@@ -251,14 +297,16 @@ class _Run:
         if budget.improve_expansions <= 0 or (budget.stop is not None and budget.stop()):
             return None, None
         build_began = time.perf_counter()
-        heuristic = planner.heuristic(tuple(self.goals[n] for n in self.names), self.disabled)
-        heuristic.prepare(self.start)
-        self.build += time.perf_counter() - build_began
+        try:
+            heuristic = planner.heuristic(tuple(self.goals[n] for n in self.names), self.disabled, budget.stop)
+            heuristic.prepare(self.start, budget.stop)
+        finally:
+            self.build += time.perf_counter() - build_began
         bound = len(incumbent.steps) if incumbent is not None else INF
         seconds = budget.improve_seconds if incumbent is not None else budget.seconds
-        found = astar(planner._system(self.disabled), self.start, is_goal, planner._is_forbidden, heuristic,
+        found = astar(planner.step_system(self.disabled), self.start, is_goal, planner.is_forbidden, heuristic,
                       deadline or self._deadline(seconds), bound=bound, max_expansions=budget.improve_expansions,
-                      stop=budget.stop)
+                      stop=budget.stop, leftovers=budget.leftovers)
         self._count(found)
         if found.moves is not None:
             return self._plan(found.moves, "astar", True, is_goal), None
@@ -266,19 +314,21 @@ class _Run:
             return None, None
         if incumbent is not None:  # no plan below the incumbent's length: it is a shortest one
             return replace(incumbent, stats=self._stats(incumbent.stats.method, minimal=True)), None
-        if found.reason == "heuristic":
+        if found.end is SearchEnd.DEAD_END:
             return None, heuristic.why_unreachable(self.start)
-        if found.reason == "exhausted":
+        if found.end is SearchEnd.EXHAUSTED:
             return None, f"unreachable ({found.expanded} reachable states explored)"
-        return None, found.reason
+        return None, found.end.value
 
     def _symbolic(self, goal: Predicate, is_goal: Callable[[State], bool]) -> Plan | NoPlan | None:
-        symbolic = self.planner.symbolic(self.disabled)
+        budget = self.budget
+        symbolic = self.planner.symbolic(self.disabled, budget.stop)
         if symbolic is None:
             return None
-        budget = self.budget
         found = symbolic.search(self.start, goal, max_layers=budget.symbolic_layers,
-                                deadline=self._deadline(budget.improve_seconds or budget.seconds))
+                                deadline=self._deadline(budget.improve_seconds or budget.seconds), stop=budget.stop)
+        if found.stopped:
+            raise Stopped
         if found.moves is not None:
             return self._plan(found.moves, "symbolic", True, is_goal)
         if found.proven_unreachable:

@@ -321,7 +321,7 @@ class RelaxedPlan:
         layer = 0
         # Layer 0 is the state itself, where the relaxed tests are the real guards: the step system's
         # one generated call finds the enabled deliberate and effect moves (action ids are move indices).
-        ready = relaxed.system._enabled(state) + relaxed.automatic_ready(r)
+        ready = relaxed.system.enabled_positions(state) + relaxed.automatic_ready(r)
         wake, constants = relaxed.wake, relaxed.constants
         tested = [-1] * len(actions)
         waiting = [-1] * len(actions)

@@ -12,25 +12,62 @@ from __future__ import annotations
 
 import heapq
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol
 
 from common.model.compiled import State
 
 from .abstraction import INF
 from .steps import Move, StateTest, StepSystem, Successor, settle
+from .stopping import StopTest
 
-TIME_CHECK_EVERY = 256
-AUTOMATICS_AT_START = "the automatic transitions due at the start enter a forbidden state or never stop"
+# Expansions between two looks at the clock and the stop test (a system call each). An expansion evaluates
+# the heuristic of every successor, up to milliseconds each where its caches are cold: a newer request
+# waits at most this many expansions.
+TIME_CHECK_EVERY = 4
+
+
+class SearchEnd(Enum):
+    """How a search (A* or greedy) ended."""
+
+    FOUND = "found"  # its moves reach a goal
+    OUT_OF_BUDGET = "out of budget"  # the expansions or the deadline ran out first
+    STOPPED = "stopped"  # its stop test said so (a newer request waits)
+    DEAD_END = "dead end"  # the heuristic shows no goal reachable from the start
+    EXHAUSTED = "exhausted"  # every reachable state (below the bound) explored: no plan
+    AUTOMATICS_AT_START = "the automatic transitions due at the start enter a forbidden state or never stop"
+
+
+class Heuristic(Protocol):
+    """A lower bound on the steps left (INF: no goal reachable), with tables built for the states reachable
+    from a start by `prepare` (`heuristics.GoalHeuristic`)."""
+
+    def __call__(self, state: State) -> int: ...
+    def prepare(self, start: State, stop: StopTest | None = None) -> None: ...
 
 
 @dataclass
 class SearchResult:
-    moves: list[Move] | None  # None: no plan
+    moves: list[Move] | None  # None: no plan, `end` says why
+    end: SearchEnd
     expanded: int = 0
     generated: int = 0
-    timed_out: bool = False
-    reason: str = ""
+
+    @property
+    def timed_out(self) -> bool:
+        """Ended before it settled anything: a plan may still exist."""
+        return self.end is SearchEnd.OUT_OF_BUDGET or self.end is SearchEnd.STOPPED
+
+
+def out_of_time(expanded: int, limit: int, deadline: float | None, stop: StopTest | None) -> SearchEnd | None:
+    """Whether a search ends here (None: it goes on). Called every so many expansions: the clock and the stop
+    test cost a system call each."""
+    if expanded > limit or (deadline is not None and time.perf_counter() > deadline):
+        return SearchEnd.OUT_OF_BUDGET
+    if stop is not None and stop():
+        return SearchEnd.STOPPED
+    return None
 
 
 Parents = dict[State, tuple[State, tuple[Move, ...]] | None]
@@ -50,33 +87,34 @@ def astar(
     start: State,
     goal: StateTest,
     forbidden: StateTest | None,
-    heuristic: Callable[[State], int],
+    heuristic: Heuristic,
     deadline: float | None,
     *,
     bound: int = INF,
     max_expansions: int | None = None,
-    stop: Callable[[], bool] | None = None,
+    stop: StopTest | None = None,
+    leftovers: list[object] | None = None,
 ) -> SearchResult:
     """A shortest move sequence from `start` (neither forbidden nor a goal) to a goal state.
 
     Only plans shorter than `bound` count (an incumbent from another member): "exhausted"
     then means no plan shorter than the bound exists. `max_expansions` bounds the work
     deterministically; `deadline` (perf_counter) and `stop` (a newer request) end it early.
+    A search ended by `stop` puts its open list and closed states into `leftovers` (if given):
+    freeing them takes ~30 ms per second searched, which the owner spends when it has time.
     """
     settled = settle(system, start, goal, forbidden)
     if settled is None:
-        return SearchResult(None, reason=AUTOMATICS_AT_START)
+        return SearchResult(None, SearchEnd.AUTOMATICS_AT_START)
     if isinstance(settled, Successor):
-        return SearchResult(list(settled.moves))
+        return SearchResult(list(settled.moves), SearchEnd.FOUND)
     root, prefix = settled
-    prepare = getattr(heuristic, "prepare", None)
-    if prepare is not None:
-        prepare(root)
+    heuristic.prepare(root, stop)  # may raise `Stopped`: a table build cut short keeps nothing half built
     h0 = heuristic(root)
     if h0 >= INF:
-        return SearchResult(None, reason="heuristic")
+        return SearchResult(None, SearchEnd.DEAD_END)
     if len(prefix) + h0 >= bound:
-        return SearchResult(None, reason="exhausted")
+        return SearchResult(None, SearchEnd.EXHAUSTED)
     best_g: dict[State, int] = {root: 0}
     parent: Parents = {root: None}
     h_of: dict[State, int] = {root: h0}
@@ -90,14 +128,17 @@ def astar(
     while heap:
         _, negative_g, _, state, terminal = pop(heap)
         if terminal is not None:
-            return SearchResult(prefix + path_to(parent, *terminal), expanded, generated)
+            return SearchResult(prefix + path_to(parent, *terminal), SearchEnd.FOUND, expanded, generated)
         g = -negative_g
         if g > best_g[state]:
             continue  # a stale entry: reached more cheaply since
         expanded += 1
-        if expanded > limit or (expanded % TIME_CHECK_EVERY == 0 and (
-                (deadline is not None and time.perf_counter() > deadline) or (stop is not None and stop()))):
-            return SearchResult(None, expanded, generated, timed_out=True)
+        if expanded > limit or expanded % TIME_CHECK_EVERY == 0:
+            end = out_of_time(expanded, limit, deadline, stop)
+            if end is not None:
+                if end is SearchEnd.STOPPED and leftovers is not None:
+                    leftovers.append((heap, best_g, parent, h_of))
+                return SearchResult(None, end, expanded, generated)
         for succ in successors(state, goal, forbidden):
             generated += 1
             g2 = g + len(succ.moves)
@@ -121,4 +162,4 @@ def astar(
             parent[s2] = (state, succ.moves)
             counter += 1
             push(heap, (g2 + h2, -g2, counter, s2, None))
-    return SearchResult(None, expanded, generated, reason="exhausted")
+    return SearchResult(None, SearchEnd.EXHAUSTED, expanded, generated)

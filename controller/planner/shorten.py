@@ -15,6 +15,7 @@ from common.model import TransitionKind
 from common.model.compiled import CompiledModel, State
 
 from .steps import Move, StepSystem
+from .stopping import StopTest, check_stop
 
 ENOUGH_SKIPPED = 48  # micro steps a removal may drop before the attempt is taken as hopeless
 
@@ -39,12 +40,13 @@ def without_loops(compiled: CompiledModel, moves: list[Move], start: State) -> l
 
 
 def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Callable[[State], bool],
-              forbidden: Callable[[State], bool] | None, work: int) -> list[Move]:
+              forbidden: Callable[[State], bool] | None, work: int, stop: StopTest | None = None) -> list[Move]:
     """Action elimination (Nakhost & Müller): drop a deliberate step and every later step that can
     no longer fire; keep the shorter plan if it still reaches the goals. An attempt ends early
     both ways: once the shortened run is back in a state the plan passed at the same point (the
     rest of the plan is valid from there, unchanged), and once it has dropped more steps than a
-    detour has (the step was needed). `work` bounds the simulated steps."""
+    detour has (the step was needed). `work` bounds the simulated steps; `stop` ends the passes
+    between two attempts (`stopping.Stopped`)."""
     transitions = system.compiled.transitions
     race = system.race
 
@@ -84,6 +86,7 @@ def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Call
     states = trajectory(start, moves)
     i = 0
     while i < len(moves) and work > 0:
+        check_stop(stop)
         if transitions[moves[i][0]].kind is TransitionKind.DELIBERATE:
             tried = replay(i)
             if tried is not None and len(tried) < len(moves):

@@ -149,7 +149,8 @@ class StepSystem:
         )
         self.transitions: tuple[CompiledTransition, ...] = (*self.controlled, *self.automatic)
         self.race = race or RaceCheck(compiled, disabled)
-        self._enabled = self._enabled_function()
+        # Positions in `moves` of the moves enabled in a state where no automatic is: one generated call.
+        self.enabled_positions: Callable[[State], list[int]] = self._enabled_function()
         self._readers: dict[int, list[int]] = {}
         for position, t in enumerate(self.automatic):
             for i in t.reads:
@@ -194,7 +195,7 @@ class StepSystem:
     def enabled_moves(self, state: State) -> list[tuple[CompiledTransition, int]]:
         """Deliberate transitions and effect outcomes enabled in a state where no automatic one is."""
         moves = self.moves
-        return [moves[m] for m in self._enabled(state)]
+        return [moves[m] for m in self.enabled_positions(state)]
 
     def chain(
         self,

@@ -55,7 +55,9 @@ from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.predicates import Ref
 from common.model.variables import Value
 
+from .search import SearchEnd
 from .steps import Move
+from .stopping import StopTest, check_stop
 from .symbolic_encoding import Encoding, Function, and_exists, disjunction, variable_order
 
 GOAL_CACHE = 16  # goals whose backward layers are kept
@@ -73,6 +75,7 @@ class SymbolicResult:
     forward: int = 0  # forward layers computed
     backward: int = 0  # backward layers available (computed now or kept from earlier calls)
     nodes: int = 0  # BDD nodes of both reached sets at the end: the size of the symbolic work
+    stopped: bool = False  # with timed_out: the stop test ended it (a newer request), not a budget
 
 
 @dataclass(frozen=True)
@@ -107,6 +110,26 @@ class _Backward:
 BACKWARD_WEIGHT = 2  # a backward layer costs about twice a forward one of equal size (measured)
 
 
+@dataclass(frozen=True)
+class SearchLimits:
+    """The wall-clock deadline (`time.perf_counter()`) and the stop test of one search."""
+
+    deadline: float | None = None
+    stop: StopTest | None = None
+
+    def ended(self) -> SearchEnd | None:
+        """Why the search ends here (OUT_OF_BUDGET or STOPPED), or None. Once it has ended it stays ended, so
+        a caller may ask again: a deadline stays past, and a newer request waits until it is read."""
+        if self.deadline is not None and time.perf_counter() > self.deadline:
+            return SearchEnd.OUT_OF_BUDGET
+        if self.stop is not None and self.stop():
+            return SearchEnd.STOPPED
+        return None
+
+
+NO_LIMITS = SearchLimits()
+
+
 class SymbolicPlanner:
     """Shortest plans by symbolic bidirectional breadth-first search, for one compiled model, forbidden
     predicate and set of disabled resources. The owner keeps one per disabled set: building it costs
@@ -114,8 +137,10 @@ class SymbolicPlanner:
     Calls are serialized by a lock (a BDD manager is not thread-safe)."""
 
     def __init__(
-        self, compiled: CompiledModel, forbidden: Predicate | None, disabled: frozenset[str] = frozenset()
+        self, compiled: CompiledModel, forbidden: Predicate | None, disabled: frozenset[str] = frozenset(),
+        stop: StopTest | None = None,
     ) -> None:
+        """`stop` ends the build (`stopping.Stopped`): the owner stores the member only once it is built."""
         began = time.perf_counter()
         self.compiled = compiled
         self.forbidden = forbidden
@@ -136,12 +161,14 @@ class SymbolicPlanner:
         moves: list[_SymbolicMove] = []
         earlier = enc.false  # some earlier automatic is enabled: this one must wait
         for t in automatic:
+            check_stop(stop)
             moves.append(self._move(t, 0, guards[t.number] & ~earlier))
             earlier |= guards[t.number]
         self.urgent: Function = earlier
         stable = ~earlier
-        races = self._races(controlled, guards)
+        races = self._races(controlled, guards, stop)
         for t in controlled:
+            check_stop(stop)
             fire = stable & guards[t.number]
             if t.kind is TransitionKind.DELIBERATE:
                 fire &= ~races.get(t.number, enc.false)
@@ -187,7 +214,8 @@ class SymbolicPlanner:
                                      dict(zip(primes, bits, strict=True))))
         return tuple(clusters)
 
-    def _races(self, controlled: list[CompiledTransition], guards: dict[int, Function]) -> dict[int, Function]:
+    def _races(self, controlled: list[CompiledTransition], guards: dict[int, Function],
+               stop: StopTest | None) -> dict[int, Function]:
         """For each deliberate t, the states where `RaceCheck.races(state, t)` holds, symbolically.
 
         The pairs (f, rivals) are chosen exactly as RaceCheck chooses them; the condition on the
@@ -209,6 +237,7 @@ class SymbolicPlanner:
         # The state after t is due f and e, and either firing first disables the other.
         overtaken: dict[int, Function] = {}
         for f in effects:
+            check_stop(stop)
             condition = enc.false
             for e in effects:
                 if e is f or not (e.writes & f.reads or f.writes & e.reads):
@@ -219,6 +248,7 @@ class SymbolicPlanner:
             overtaken[f.number] = guards[f.number] & condition
         result: dict[int, Function] = {}
         for t in controlled:
+            check_stop(stop)
             if t.kind is not TransitionKind.DELIBERATE:
                 continue
             after = disjunction((overtaken[f.number] for f in effects if f.reads & t.writes), enc.false)
@@ -227,27 +257,27 @@ class SymbolicPlanner:
         return result
 
     # --- images -----------------------------------------------------------------------------------
-    def _image(self, frontier: Function, deadline: float | None) -> Function | None:
-        """The states one move after `frontier` (None: the deadline passed)."""
+    def _image(self, frontier: Function, limits: SearchLimits = NO_LIMITS) -> Function | None:
+        """The states one move after `frontier` (None: the deadline passed or the stop test said so)."""
         bdd, false = self.encoding.bdd, self.encoding.false
         parts = []
         for count, cluster in enumerate(self.clusters):
-            if deadline is not None and count % TIME_CHECK_EVERY == 0 and time.perf_counter() > deadline:
+            if count % TIME_CHECK_EVERY == 0 and limits.ended() is not None:
                 return None
             after = and_exists(bdd, frontier, cluster.relation, cluster.bits)
             if after != false:
                 parts.append(bdd.let(cluster.unprime, after))
         return disjunction(parts, false)
 
-    def _preimage(self, target: Function, deadline: float | None) -> Function | None:
-        """The states with a move into `target` (None: the deadline passed).
+    def _preimage(self, target: Function, limits: SearchLimits = NO_LIMITS) -> Function | None:
+        """The states with a move into `target` (None: the deadline passed or the stop test said so).
 
         By substitution (wp), not by the relations: renaming a layer into primed bits once per
         cluster cost more than the products themselves; a constant assignment is a cofactor."""
         bdd, false = self.encoding.bdd, self.encoding.false
         parts = []
         for count, (substitution, fire) in enumerate(self.writes):
-            if deadline is not None and count % TIME_CHECK_EVERY == 0 and time.perf_counter() > deadline:
+            if count % TIME_CHECK_EVERY == 0 and limits.ended() is not None:
                 return None
             before = fire & bdd.let(substitution, target)
             if before != false:
@@ -294,17 +324,19 @@ class SymbolicPlanner:
         max_layers: int = 10_000,
         max_nodes: int | None = None,
         deadline: float | None = None,
+        stop: StopTest | None = None,
     ) -> SymbolicResult:
         """A shortest plan from `start` to a stable state satisfying `goal`, as moves (transition number, outcome).
 
         Budgets: the forward and backward depths together at most `max_layers`, no frontier of more
         than `max_nodes` BDD nodes expanded (both deterministic), and the wall-clock `deadline` (a
-        `time.perf_counter()` value), also checked inside a layer."""
+        `time.perf_counter()` value) and `stop` (a newer request), both also looked at inside a layer: a
+        layer is kept only whole, so the goal's kept layers stay exact whenever the search ends."""
         with self._lock:
-            return self._search(start, goal, max_layers, max_nodes, deadline)
+            return self._search(start, goal, max_layers, max_nodes, SearchLimits(deadline, stop))
 
     def _search(
-        self, start: State, goal: Predicate, max_layers: int, max_nodes: int | None, deadline: float | None
+        self, start: State, goal: Predicate, max_layers: int, max_nodes: int | None, limits: SearchLimits
     ) -> SymbolicResult:
         began = time.perf_counter()
         enc = self.encoding
@@ -317,10 +349,17 @@ class SymbolicPlanner:
         back = self._goal_layers(goal)
 
         def result(moves: list[Move] | None, reason: str = "", proven: bool = False,
-                   timed_out: bool = False) -> SymbolicResult:
+                   timed_out: bool = False, stopped: bool = False) -> SymbolicResult:
             depth = len(moves) if moves is not None else len(forward) - 1 + len(back.layers) - 1
             return SymbolicResult(moves, depth, proven, timed_out, time.perf_counter() - began, reason,
-                                  len(forward) - 1, len(back.layers) - 1, reached.dag_size + back.reached.dag_size)
+                                  len(forward) - 1, len(back.layers) - 1, reached.dag_size + back.reached.dag_size,
+                                  stopped)
+
+        def ended_early(end: SearchEnd | None) -> SymbolicResult:
+            depth = len(forward) - 1 + len(back.layers) - 1
+            if end is SearchEnd.STOPPED:
+                return result(None, f"stopped by a newer request ({depth} layers)", timed_out=True, stopped=True)
+            return result(None, f"no plan within the time limit ({depth} layers)", timed_out=True)
 
         if origin & self.allowed == false:
             return result(None, "the start state is forbidden")
@@ -335,16 +374,17 @@ class SymbolicPlanner:
                                     f"({len(back.layers) - 1} layers)", proven=True)
             if depth >= max_layers:
                 return result(None, f"no plan within {max_layers} layers", timed_out=True)
-            if deadline is not None and time.perf_counter() > deadline:
-                return result(None, f"no plan within the time limit ({depth} layers)", timed_out=True)
+            ended = limits.ended()
+            if ended is not None:
+                return ended_early(ended)
             ahead, behind = forward[-1].dag_size, back.layers[-1].dag_size
             go_forward = ahead <= BACKWARD_WEIGHT * behind
             if max_nodes is not None and (ahead if go_forward else behind) > max_nodes:
                 return result(None, f"no plan within {max_nodes} BDD nodes per layer", timed_out=True)
             if go_forward:
-                image = self._image(forward[-1], deadline)
+                image = self._image(forward[-1], limits)
                 if image is None:
-                    return result(None, f"no plan within the time limit ({depth} layers)", timed_out=True)
+                    return ended_early(limits.ended())
                 new = image & self.allowed & ~reached
                 if new == false:
                     return result(None, f"unreachable: every reachable state explored ({len(forward) - 1} "
@@ -356,9 +396,9 @@ class SymbolicPlanner:
                     j = next(j for j, layer in enumerate(back.layers) if meet & layer != false)
                     return result(self._join(forward, len(forward) - 1, back.layers, j))
             else:
-                before = self._preimage(back.layers[-1], deadline)
+                before = self._preimage(back.layers[-1], limits)
                 if before is None:
-                    return result(None, f"no plan within the time limit ({depth} layers)", timed_out=True)
+                    return ended_early(limits.ended())
                 new = before & self.allowed & ~back.reached
                 if new == false:
                     back.complete = True

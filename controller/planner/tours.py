@@ -10,6 +10,7 @@ from common.model.compiled import CompiledTransition, State, predicate_source
 
 from .abstraction import INF, Abstraction, approximate
 from .arborescence import min_arborescence
+from .stopping import StopTest, check_stop
 
 # Beyond this many classes the arborescence (Edmonds, per evaluation) costs more than it gains: with one
 # atom per class the cheapest incoming edges already hold most of the tour.
@@ -38,8 +39,10 @@ class TourGroup:
         costed: frozenset[int],
         arborescence: bool = True,
         potential: int = 1,
+        stop: StopTest | None = None,
     ) -> None:
-        """`costed`: the transitions this group counts (its share of the zero-one cost partition)."""
+        """`costed`: the transitions this group counts (its share of the zero-one cost partition); `stop`
+        ends the build (`stopping.Stopped`)."""
         self.abstraction = abstraction
         self.atoms = tuple(atoms)
         self.arborescence = arborescence
@@ -57,10 +60,11 @@ class TourGroup:
             by_signature.setdefault(signature, []).append(n)
         self.classes = list(by_signature.values())
         representative = [achieved_by[members[0]] for members in self.classes]
-        self._fires: list[list[tuple[int, int]]] = [  # (state, cost) where an achiever of the class fires
-            [(x, int(t.number in costed)) for t, o, c in found for x in abstraction.enabled_states(t, o, c)]
-            for found in representative
-        ]
+        self._fires: list[list[tuple[int, int]]] = []  # (state, cost) where an achiever of the class fires
+        for found in representative:
+            check_stop(stop)
+            self._fires.append([(x, int(t.number in costed))
+                                for t, o, c in found for x in abstraction.enabled_states(t, o, c, stop)])
         self._fires_keys = [  # distance tables are shared by every group over the same abstraction
             ("fires", frozenset((t.number, o, c, t.number in costed) for t, o, c in found)) for found in representative
         ]
@@ -68,9 +72,10 @@ class TourGroup:
         size = len(self.classes)
         self._pairs: list[list[tuple[int, int]]] = []  # (before, after) an achiever of the class fires
         for found in representative:
+            check_stop(stop)
             pairs: set[tuple[int, int]] = set()
             for t, o, c in found:
-                pairs.update(abstraction.firings(t, o, c))
+                pairs.update(abstraction.firings(t, o, c, stop))
             self._pairs.append(sorted(pairs))
         # One step achieving two atoms at once makes the segment between them empty.
         class_of = {n: k for k, members in enumerate(self.classes) for n in members}
@@ -94,31 +99,41 @@ class TourGroup:
         self._cache: dict[tuple[int, tuple[int, ...]], list[tuple[tuple[int, ...], int]]] = {}
         self._values: dict[tuple[int, tuple[int, ...]], int] = {}
 
-    def prepare(self, start: State) -> None:
-        """Restrict the states after achievers to those reachable from the start (and earlier starts)."""
+    def prepare(self, start: State, stop: StopTest | None = None) -> None:
+        """Restrict the states after achievers to those reachable from the start (and earlier starts).
+        The tables are computed first and stored together after the last stop check."""
         abstraction = self.abstraction
-        abstraction.reach_from_initial()
-        abstraction.reach_from(self.index(start))
+        abstraction.reach_from_initial(stop)
+        abstraction.reach_from(self.index(start), stop)
         if self._version == abstraction.reachable_version:
             return
         reachable = abstraction.reachable
-        self.reach = [
-            abstraction.distances(key, lambda fires=fires: fires)
+        reach = [
+            abstraction.distances(key, lambda fires=fires: fires, stop)
             for key, fires in zip(self._fires_keys, self._fires, strict=True)
         ]
         pairs = [[(z, y) for z, y in found if reachable[z]] for found in self._pairs]
-        for source, found in enumerate(pairs):
-            for target, reach in enumerate(self.reach):
-                self.between[source][target] = min((reach[y] for _, y in found), default=INF)
+        between = []
+        for found in pairs:
+            check_stop(stop)
+            between.append([min((to[y] for _, y in found), default=INF) for to in reach])
         for a, b in self._together:
-            self.between[a][b] = 0
+            between[a][b] = 0
+        reach_pi: list[list[int]] = []
+        between_pi = self.between_pi
         if self.potential and len(self.atoms) > 1:  # potentials only shift costs between atoms
-            self._potentials(pairs)
+            reach_pi, between_pi = self._potentials(reach, pairs, stop)
+        self.reach, self.between, self.reach_pi, self.between_pi = reach, between, reach_pi, between_pi
         self._version = abstraction.reachable_version
         self._cache.clear()
         self._values.clear()
 
-    def _potentials(self, pairs: list[list[tuple[int, int]]]) -> None:
+    def ready_for(self, start: State) -> bool:
+        """`prepare(start)` would build nothing."""
+        return self.abstraction.covers(self.index(start)) and self._version == self.abstraction.reachable_version
+
+    def _potentials(self, reach: list[list[int]], pairs: list[list[tuple[int, int]]],
+                    stop: StopTest | None) -> tuple[list[list[int]], list[list[int]]]:
         """Edge costs shifted by potentials on the states where achievers fire.
 
         `W(L, K)` takes the best state after L's achiever, often one where work for the next segment is
@@ -133,9 +148,10 @@ class TourGroup:
         pis: list[dict[int, int]] = []
         varies = False
         for k, found in enumerate(pairs):
+            check_stop(stop)
             out: dict[int, int] = {}
             for z, y in found:
-                best = min((self.reach[j][y] for j in range(size) if j != k), default=INF)
+                best = min((reach[j][y] for j in range(size) if j != k), default=INF)
                 if best < out.get(z, INF + 1):
                     out[z] = best
             finite = [v for v in out.values() if v < INF]
@@ -143,20 +159,20 @@ class TourGroup:
             varies = varies or max(finite, default=INF) > base
             pis.append({z: min(limit, base + limit - v) for z, v in out.items() if v < INF and base + limit > v})
         if not varies:  # the same potential on every firing state of a class shifts nothing: skip the tables
-            self.reach_pi = []
-            return
+            return [], self.between_pi
         keys = tuple(self._fires_keys)
-        self.reach_pi = [
+        reach_pi = [
             abstraction.distances(("fires-pi", limit, k, keys),
-                                  lambda fires=fires, pi=pi: [(x, c - pi.get(x, 0)) for x, c in fires])
+                                  lambda fires=fires, pi=pi: [(x, c - pi.get(x, 0)) for x, c in fires], stop)
             for k, (fires, pi) in enumerate(zip(self._fires, pis, strict=True))
         ]
-        for source, found in enumerate(pairs):
-            pi = pis[source]
-            for target, reach in enumerate(self.reach_pi):
-                self.between_pi[source][target] = min((pi.get(z, 0) + reach[y] for z, y in found), default=INF)
+        between_pi = []
+        for pi, found in zip(pis, pairs, strict=True):
+            check_stop(stop)
+            between_pi.append([min((pi.get(z, 0) + to[y] for z, y in found), default=INF) for to in reach_pi])
         for a, b in self._together:
-            self.between_pi[a][b] = min(self.between_pi[a][b], -limit)
+            between_pi[a][b] = min(between_pi[a][b], -limit)
+        return reach_pi, between_pi
 
     def value(self, s: State) -> int:
         x = self.index(s)

@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from common.config.hubs_toml import StationConfig
 from common.model import Duration, Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
-from controller.control import VIRTUAL_BUDGET
 from controller.cycle import CycleReport, effect_seconds
 from controller.deorder import Execution
 from controller.loop import ControlLoop
 from controller.planner import Budget
+from controller.planner.policy import VIRTUAL_BUDGET
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
 from controller.recording.schema import RunOutcome
 from controller.stack import build_controller_stack

@@ -39,8 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from common.model import Model, OperationState, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
 from common.stations import engine_assembly, load_model
-from controller.control import VIRTUAL_BUDGET
 from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
+from controller.planner.policy import VIRTUAL_BUDGET
 from controller.planner.search import astar
 from controller.planner.steps import stable_goal
 from controller.stack import build_controller_stack
@@ -117,7 +117,7 @@ def astar_alone(planner: Planner, case: Case, limit: float) -> Outcome:
     is_goal = stable_goal(case.compiled, case.compiled.predicate(goal), frozenset())
     heuristic = planner.heuristic(tuple(case.goals.values()))
     heuristic.prepare(case.start)
-    found = astar(planner._system(frozenset()), case.start, is_goal, planner._is_forbidden, heuristic,
+    found = astar(planner.step_system(frozenset()), case.start, is_goal, planner.is_forbidden, heuristic,
                   time.perf_counter() + limit)
     seconds = time.process_time() - began
     if found.moves is None:

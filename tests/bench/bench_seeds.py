@@ -35,7 +35,7 @@ def run_one(model_reference: str, seed: int, fail_rate: float,
             improve: int) -> tuple[int, bool, str, float, float, int, int]:
     from dataclasses import replace
 
-    from controller.control import VIRTUAL_BUDGET
+    from controller.planner.policy import VIRTUAL_BUDGET
     from deploy.local.inprocess import run_in_process
 
     model = load_model(model_reference)
