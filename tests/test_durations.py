@@ -111,7 +111,7 @@ def test_a_duration_is_an_interval_of_seconds() -> None:
 
 
 def emulator(model: Model, seed: int, **kwargs: object) -> EffectEmulator:
-    return EffectEmulator(model, (r.name for r in model.resources), seed=seed, **kwargs)  # type: ignore[arg-type]
+    return EffectEmulator(model, (r.name for r in model.resources), seed=seed, **kwargs)  # type: ignore[arg-type]  # the test passes the emulator's keywords through
 
 
 def test_the_emulator_picks_within_the_interval_reproducibly_by_seed() -> None:

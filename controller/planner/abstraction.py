@@ -157,7 +157,7 @@ class Abstraction:
         terms = " + ".join(f"t{k}[s[{i}]]" for k, i in enumerate(self.variables))
         namespace: dict[str, object] = {f"t{k}": table for k, table in enumerate(tables)}
         exec(f"def index(s):\n    return {terms}", namespace)
-        return namespace["index"]  # type: ignore[return-value]
+        return namespace["index"]  # type: ignore[return-value]  # compiled by exec: the namespace holds objects
 
     # --- enumeration ----------------------------------------------------------------------
     def free_offsets(self, positions: Sequence[int]) -> list[int]:
@@ -196,7 +196,7 @@ class Abstraction:
         positions = self._positions(approx)
         free = self.free_offsets(positions)
         test = self._test(approx, positions)
-        result = []
+        result: list[int] = []
         for vals, _, offset in self._local(positions):
             if test(vals):
                 result.extend(offset + f for f in free)
@@ -209,7 +209,8 @@ class Abstraction:
         guard = approximate(And((self.system.compiled.guard_of(t.source), condition)), self.keep)
         if guard == FALSE:
             return
-        writes: list[tuple[int, object]] = []  # (position, value index | ("copy", position) | None = any)
+        # (position, value index | ("copy", position) | None = any)
+        writes: list[tuple[int, int | tuple[str, int] | None]] = []
         for action in t.source.outcomes[outcome]:
             k = self.position.get(action.path)
             if k is None:

@@ -27,7 +27,7 @@ def micro_steps(
         if not (t.resources & disabled) and t.guard(state):
             return [(t, 0)]
     race = race or RaceCheck(compiled, disabled)
-    steps = []
+    steps: list[tuple[CompiledTransition, int]] = []
     for t in compiled.deliberate:
         if not (t.resources & disabled) and t.guard(state) and not race.races(state, t):
             steps.extend((t, o) for o in range(len(t.outcomes)))

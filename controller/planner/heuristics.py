@@ -29,7 +29,7 @@ make more than k atoms true, so ceil(unsatisfied / k) is a bound too.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 from common.model import FALSE, TRUE, And, Const, In, Predicate, Ref
@@ -183,8 +183,8 @@ class GoalHeuristic:
         excluded = {index[next(iter(a.paths()))] for a, _ in tour}
         families: dict[tuple[int, ...], list[tuple[Predicate, list[Achiever]]]] = {}
         for atom, found in tour:
-            seed = {index[p] for t, _, c in found for p in compiled.guard_of(t.source).paths() | c.paths()}
-            families.setdefault(tuple(sorted(seed - excluded)), []).append((atom, found))
+            reads = {index[p] for t, _, c in found for p in compiled.guard_of(t.source).paths() | c.paths()}
+            families.setdefault(tuple(sorted(reads - excluded)), []).append((atom, found))
         # Two ways to cover what a family's cone leaves out (see `_patterns`), each with and without the
         # enabling landmarks; `prepare` keeps the collection with the largest value at the start.
         landmarks = self._landmarks(tour) if self.options.landmarks else []
@@ -236,15 +236,18 @@ class GoalHeuristic:
                 continue
             writing = frozenset(self._written_by(variables))
             if is_tour:
-                groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],  # type: ignore[misc]
-                                        [f for _, f in members], index, costs, self.options.arborescence,  # type: ignore[misc]
+                groups.append(TourGroup(abstraction(variables, costs & writing), [a for a, _ in members],  # type: ignore[misc]  # a tour's members are (atom, achievers) pairs (is_tour)
+                                        [f for _, f in members], index, costs, self.options.arborescence,  # type: ignore[misc]  # a tour's members are (atom, achievers) pairs (is_tour)
                                         self.options.potential, stop))
             else:
-                groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))  # type: ignore[arg-type]
+                groups.append(ConjunctionGroup(abstraction(variables, costs & writing), members))  # type: ignore[arg-type]  # a pattern's members are atoms (not is_tour)
         return groups
 
-    def _partition(self, plans: Sequence[tuple[tuple[int, ...], object, bool]], depths: Sequence[dict[int, int]]
-                   ) -> list[frozenset[int]]:
+    def _partition(
+        self,
+        plans: Sequence[tuple[tuple[int, ...], list[tuple[Predicate, list[Achiever]]] | list[Predicate], bool]],
+        depths: Sequence[dict[int, int]],
+    ) -> list[frozenset[int]]:
         """Zero-one cost partitioning: each transition counts (costs 1) in exactly one pattern.
 
         A transition goes to the pattern that holds most of the variables it writes (a pattern holding
@@ -257,18 +260,17 @@ class GoalHeuristic:
         """
         chosen: dict[int, int] = {}
         best: dict[int, tuple[int, int, int]] = {}
-        achieving = {t.number for _, members, is_tour in plans if is_tour
-                     for _, found in members for t, _, _ in found}  # type: ignore[attr-defined]
+        achieving = {t.number for _, members, is_tour in plans if is_tour for t, _, _ in _achievers(members)}
         for n, (variables, _, _) in enumerate(plans):
-            members = set(variables)
+            held = set(variables)
             depth = depths[n]
             for t in self.system.transitions:
                 if t.number in achieving:
                     continue
-                written = t.writes & members
+                written = t.writes & held
                 if not written:
                     continue
-                key = (len(written), -min(depth.get(v, len(depth)) for v in written), len(t.reads & members))
+                key = (len(written), -min(depth.get(v, len(depth)) for v in written), len(t.reads & held))
                 if key > best.get(t.number, (0, -len(depth) - 1, 0)):
                     best[t.number] = key
                     chosen[t.number] = n
@@ -278,9 +280,8 @@ class GoalHeuristic:
                 first_of_family.setdefault(id(members), n)
         for n, (_, members, is_tour) in enumerate(plans):
             if is_tour and first_of_family[id(members)] == n:
-                for _, found in members:  # type: ignore[attr-defined]
-                    for t, _, _ in found:
-                        chosen.setdefault(t.number, n)
+                for t, _, _ in _achievers(members):
+                    chosen.setdefault(t.number, n)
         costs: list[set[int]] = [set() for _ in plans]
         for number, n in chosen.items():
             costs[n].add(number)
@@ -480,7 +481,7 @@ class GoalHeuristic:
     def _value(self, groups: Sequence[Group], s: State) -> int:
         if self.impossible:
             return INF
-        unsatisfied: int = self._unsatisfied(s)  # type: ignore[assignment]
+        unsatisfied: int = self._unsatisfied(s)  # type: ignore[assignment]  # a generated function (exec) returns an int
         if not unsatisfied:
             return 0
         if self.per_step == 0:
@@ -506,3 +507,10 @@ class GoalHeuristic:
 
     def describe(self) -> str:
         return "; ".join(str(g) for g in self.groups) or "(no groups)"
+
+
+def _achievers(members: list[tuple[Predicate, list[Achiever]]] | list[Predicate]) -> Iterator[Achiever]:
+    """The achievers of a tour family's atoms (a tour's members are (atom, achievers) pairs, a pattern's atoms)."""
+    for member in members:
+        if isinstance(member, tuple):
+            yield from member[1]

@@ -7,7 +7,7 @@ virtual time they are counts of expanded states, so that a seed reproduces a run
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Generator, Mapping
 from typing import Protocol
 
 from common.model import Predicate
@@ -59,7 +59,7 @@ class PlanQuestion(Protocol):
 Answered = tuple[Plan | NoPlan | None, PlannedAlone | None]
 
 
-def anytime_answers(planner: Planner, question: PlanQuestion, budget: Budget) -> Iterator[Answered]:
+def anytime_answers(planner: Planner, question: PlanQuestion, budget: Budget) -> Generator[Answered, None, None]:
     """The answers to one request: the portfolio's for all goals together; if it neither finds a plan nor
     shows one impossible, the first goal alone that has one (progress over minimality, as the original
     planner did for hard cases), with a note that says so."""

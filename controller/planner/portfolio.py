@@ -159,7 +159,7 @@ class PortfolioRun:
         compiled = planner.compiled
         goal = all_of(*(self.goals[n] for n in self.names))
         if planner.is_forbidden is not None and planner.is_forbidden(start):
-            yield NoPlan(f"the start state is forbidden ({_short(planner.forbidden)})",  # type: ignore[arg-type]
+            yield NoPlan(f"the start state is forbidden ({_short(planner.forbidden)})",  # type: ignore[arg-type]  # the start state is forbidden only when a specification holds
                          self.names, self._stats("none"))
             return
         is_goal = stable_goal(compiled, planner.goal_test(goal), self.disabled)

@@ -130,7 +130,7 @@ class _Encoder:
     def failing(self, conjuncts: Sequence[Node]) -> Callable[[list[int]], list[int]]:
         """One generated function listing the conjuncts that do not hold: the relaxed plan needs
         achievers only for those, and most of a synthesized guard holds where it is asked."""
-        return _define(self.failing_source("failing", conjuncts))["failing"]  # type: ignore[return-value]
+        return _define(self.failing_source("failing", conjuncts))["failing"]  # type: ignore[return-value]  # compiled by exec: the namespace holds objects
 
     def failing_source(self, name: str, conjuncts: Sequence[Node]) -> list[str]:
         return _listing(name, ((k, f"not ({self.source(c)})") for k, c in enumerate(conjuncts)))
@@ -198,22 +198,22 @@ class RelaxedModel:
                     constants.append((target, self.encoder.bit(target, action.value)))
             reads = _reads(guard, set()) | {source for _, source in copies}
             actions.append(RelaxedAction((t.number, o), guard, tuple(sorted(reads)), conjuncts,
-                                         namespace[f"failing_{t.number}"],  # type: ignore[arg-type]
+                                         namespace[f"failing_{t.number}"],  # type: ignore[arg-type]  # compiled by exec: the namespace holds objects
                                          tuple(constants), tuple(copies)))
         self.actions = tuple(actions)
         self.readers: list[list[int]] = [[] for _ in compiled.paths]
         # An applied action is never tested again, but its copies must carry every value its sources gain
         # later, or the relaxation would under-approximate and "prove" a reachable goal unreachable.
         self.copy_readers: list[list[int]] = [[] for _ in compiled.paths]
-        for a, action in enumerate(actions):
-            for i in action.reads:
+        for a, relaxed in enumerate(actions):
+            for i in relaxed.reads:
                 self.readers[i].append(a)
-            for source in sorted({source for _, source in action.copies}):
+            for source in sorted({source for _, source in relaxed.copies}):
                 self.copy_readers[source].append(a)
         self.wake = self._wake_functions(guards)
-        self.constants: list[tuple[tuple[int, int], ...]] = [action.constants for action in actions]
+        self.constants: list[tuple[tuple[int, int], ...]] = [relaxed.constants for relaxed in actions]
         self.system = system
-        self.automatic_ready: Callable[[list[int]], list[int]] = namespace["automatic_ready"]  # type: ignore[assignment]
+        self.automatic_ready: Callable[[list[int]], list[int]] = namespace["automatic_ready"]  # type: ignore[assignment]  # compiled by exec: the namespace holds objects
         self.domains = [d.values for d in compiled.domains]
         # A state's value is always of its variable's domain, so a plain value key is exact here.
         self.value_bits: list[dict[object, int]] = [{v: 1 << k for k, v in enumerate(values)}
@@ -262,7 +262,7 @@ class RelaxedModel:
                           f"        else: waiting[{a}] = k"]
             lines.append("    return None")
         namespace = _define(lines)
-        return [namespace[f"wake_{i}"] for i in range(len(self.readers))]  # type: ignore[misc]
+        return [namespace[f"wake_{i}"] for i in range(len(self.readers))]  # type: ignore[misc]  # compiled by exec: the namespace holds objects
 
     def holds(self, node: Node, masks: list[int]) -> bool:
         found = self.tests.get(id(node))

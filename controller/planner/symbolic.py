@@ -170,8 +170,9 @@ class SymbolicPlanner:
         for t in controlled:
             check_stop(stop)
             fire = stable & guards[t.number]
-            if t.kind is TransitionKind.DELIBERATE:
-                fire &= ~races.get(t.number, enc.false)
+            race = races.get(t.number) if t.kind is TransitionKind.DELIBERATE else None
+            if race is not None:
+                fire &= ~race
             if fire == enc.false:
                 continue  # never the engine's move (a synthesized guard can be false)
             moves.extend(self._move(t, o, fire) for o in range(len(t.outcomes)))

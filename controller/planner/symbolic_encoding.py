@@ -3,6 +3,7 @@ transitions of a compiled model as BDDs over those bits (see `symbolic.py` for t
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
@@ -188,7 +189,7 @@ class Encoding:
                 j = compiled.index[action.value.path]
                 for position, name in enumerate(bits):
                     mask = 1 << (len(bits) - 1 - position)
-                    result[name] = self.where(j, lambda v, m=mask, d=domain: bool(_index(d, v) & m))
+                    result[name] = self.where(j, functools.partial(_has_bit, domain, mask))
             else:
                 k = _index(domain, action.value)
                 for position, name in enumerate(bits):
@@ -234,3 +235,8 @@ def variable_order(compiled: CompiledModel, written: set[int]) -> list[int]:
     times slower, and sorting resources by how many guards read them gained nothing overall."""
     n = len(compiled.paths)
     return [i for i in range(n) if i not in written] + [i for i in range(n) if i in written]
+
+
+def _has_bit(domain: tuple[Value, ...], mask: int, value: Value) -> bool:
+    """Whether the index of `value` in `domain` has the bit `mask` set."""
+    return bool(_index(domain, value) & mask)

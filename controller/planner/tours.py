@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Callable, Sequence
 
@@ -24,7 +25,7 @@ def generate(body: str) -> Callable[[State], object]:
     """A function of the state tuple `s` returning the generated expression `body`."""
     namespace: dict[str, object] = {}
     exec(f"def f(s):\n    return {body}", namespace)
-    return namespace["f"]  # type: ignore[return-value]
+    return namespace["f"]  # type: ignore[return-value]  # compiled by exec: the namespace holds objects
 
 
 class TourGroup:
@@ -109,7 +110,7 @@ class TourGroup:
             return
         reachable = abstraction.reachable
         reach = [
-            abstraction.distances(key, lambda fires=fires: fires, stop)
+            abstraction.distances(key, functools.partial(_same, fires), stop)
             for key, fires in zip(self._fires_keys, self._fires, strict=True)
         ]
         pairs = [[(z, y) for z, y in found if reachable[z]] for found in self._pairs]
@@ -162,8 +163,7 @@ class TourGroup:
             return [], self.between_pi
         keys = tuple(self._fires_keys)
         reach_pi = [
-            abstraction.distances(("fires-pi", limit, k, keys),
-                                  lambda fires=fires, pi=pi: [(x, c - pi.get(x, 0)) for x, c in fires], stop)
+            abstraction.distances(("fires-pi", limit, k, keys), functools.partial(_reduced, fires, pi), stop)
             for k, (fires, pi) in enumerate(zip(self._fires, pis, strict=True))
         ]
         between_pi = []
@@ -176,7 +176,7 @@ class TourGroup:
 
     def value(self, s: State) -> int:
         x = self.index(s)
-        counts: tuple[int, ...] = self.counts(s)  # type: ignore[assignment]
+        counts: tuple[int, ...] = self.counts(s)  # type: ignore[assignment]  # a generated function (exec) returns a tuple of counts
         key = (x, counts)
         value = self._values.get(key)
         if value is None:
@@ -255,3 +255,12 @@ class TourGroup:
 
     def __str__(self) -> str:
         return f"{len(self.atoms)} atom(s) in {len(self.classes)} class(es) over [{self.abstraction.describe()}]"
+
+
+def _same(fires: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    return fires
+
+
+def _reduced(fires: list[tuple[int, int]], pi: dict[int, int]) -> list[tuple[int, int]]:
+    """Each firing state's cost less its potential (the work it may carry)."""
+    return [(x, c - pi.get(x, 0)) for x, c in fires]
