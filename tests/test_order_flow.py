@@ -144,7 +144,9 @@ def test_a_status_of_an_older_controller_decodes_without_production() -> None:
 @pytest.fixture
 def reference_station(tmp_path: Path) -> Path:
     config = tmp_path / "hubs.toml"
-    config.write_text((ROOT / "hubs.toml").read_text() + f'\n[controller.recording]\ndir = "{tmp_path / "runs"}"\n')
+    text = (ROOT / "hubs.toml").read_text().replace('dir = "var/runs"', f'dir = "{tmp_path / "runs"}"', 1)
+    assert str(tmp_path) in text
+    config.write_text(text)
     return config
 
 
