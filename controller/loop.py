@@ -11,16 +11,30 @@ through here, a replay's records compare one to one with the recording's.
 It owns no clock and no bus: `clock` is read once as each ingest and tick begins (the live controller's
 `StepClock.advance`, a virtual clock elsewhere), and it returns the commands to send (the outbox's
 `Command`s) and the events logged, for its shell to publish, print or only record.
+
+A station running orders (`run_orders`) finishes and starts them here, after each tick, so that every shell
+does it at the same point: the order book commits the transition, then the core takes the product's new
+values as a `restore` (its operations finished -> initial are recorded as any operation transition) and the
+operations of the next order are requested.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from common.model import TransitionKind, Value
+from common.model import OperationState, TransitionKind, Value
 from common.model.durations import effect_owner
-from common.wire.ctl import ConsoleEvent, ConsoleReply, ConsoleRequest, HubAlive, HubGone, PlannedAlone
+from common.wire.ctl import (
+    ConsoleEvent,
+    ConsoleReply,
+    ConsoleRequest,
+    HubAlive,
+    HubGone,
+    OrderFinished,
+    OrderStarted,
+    PlannedAlone,
+)
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
@@ -29,6 +43,8 @@ from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predic
 from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
+from .production.flow import OrderFlow
+from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
 
@@ -41,6 +57,7 @@ class Ticked:
 
     result: TickResult
     commands: list[Command]
+    orders: list[OrderStarted | OrderFinished] = field(default_factory=list)  # orders finished and started
 
 
 @dataclass(frozen=True)
@@ -69,6 +86,11 @@ class ControlLoop:
         chosen = set(commanded)
         self.outbox = Outbox({r.name: [CommandVariable(v.name, v.path, index[v.path]) for v in r.commands]
                               for r in model.resources if r.name in chosen})
+        self.orders: OrderFlow | None = None  # a station running orders (controller/production/)
+
+    def run_orders(self, flow: OrderFlow) -> None:
+        """Finish and start the book's orders after each tick from now on."""
+        self.orders = flow
 
     # --- inputs -------------------------------------------------------------------------
     def request(self, operations: Sequence[str]) -> None:
@@ -108,7 +130,47 @@ class ControlLoop:
         for dispatched in result.dispatched:
             self.cycle.dispatched(core.clock(), dispatched.resources, dispatched.waited)
         self._count_effects()
-        return Ticked(result, self._recorded(self.outbox.changed(core.state, held)))
+        orders = self._advance_orders() if self.orders is not None else []
+        return Ticked(result, self._recorded(self.outbox.changed(core.state, held)), orders)
+
+    # --- orders -------------------------------------------------------------------------
+    def _advance_orders(self) -> list[OrderStarted | OrderFinished]:
+        """The running order finished if every operation it requests is; the next one started if none runs.
+        A restarted controller finds either committed with the product's values: nothing to redo here."""
+        flow, core = self.orders, self.core
+        assert flow is not None
+        news: list[OrderStarted | OrderFinished] = []
+        current = flow.current
+        if current is not None and all(core.op_state(name) is OperationState.FINISHED for name in flow.requested):
+            values = core.compiled.unpack(core.state)
+            if flow.book.complete(current, values):
+                done = flow.book.finish(current, values)
+                core.load(done.reset)
+                core.requested.clear()
+                core.errors.clear()
+                core.livelock.finished()  # a new product: no state seen for the last one says anything
+                figures = flow.finished_order(done.order, core.clock(), self.cycle.spans)
+                news.append(OrderFinished(done.order.id, done.order.product_id, done.order.variant,
+                                          figures.cycle_s, order_line(figures)))
+        # A station that runs every operation once (it never had an order) takes an order added meanwhile
+        # only when its operations are done: the order's start would reset them.
+        if flow.current is None and all(core.op_state(name) is OperationState.FINISHED for name in core.requested):
+            start = flow.book.next()
+            if start is not None:
+                core.load(start.values)
+                self.request(start.operations)
+                flow.started(start.order, start.operations)
+                news.append(OrderStarted(start.order.id, start.order.product_id, start.order.variant,
+                                         len(start.operations)))
+        for event in news:
+            core.events.log.emit(event)
+        if news:
+            self.recorder.after()  # the operations reset and the events, recorded in this tick
+        return news
+
+    def orders_done(self) -> bool:
+        """A station running orders has none running or waiting."""
+        return self.orders is not None and self.orders.idle()
 
     def resend(self, held: frozenset[str] = NOT_HELD, resources: Iterable[str] | None = None) -> list[Command]:
         """Every command (of `resources`, if given) again, at the command rate: between ticks, so a value

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from common.config.hubs_toml import load_station
 from common.config.modes import argument
+from common.config.production import plan_from_options
 from common.plumbing.lifecycle import EXPECTED_ERRORS, network, positive, run_main, setup_logging, stop_on_signals
 from controller.recording.schema import RunMeta, RunMode
 
@@ -36,18 +37,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-mode", type=argument(RunMode), choices=(RunMode.SERVICE, RunMode.UP),
                         default=RunMode.SERVICE, help=argparse.SUPPRESS)
     parser.add_argument("--run-seed", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--orders", type=int, metavar="N",
+                        help="on a fresh start, queue N orders (default: [production] of hubs.toml, if any)")
+    parser.add_argument("--mix", metavar="VARIANT:WEIGHT,...", help="with --orders: the variants, repeating")
     parser.add_argument("-v", "--verbose", action="store_true")
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
                          fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False,
-                         certs: str | None = None, record: RunMeta | None = None) -> int:
+                         certs: str | None = None, record: RunMeta | None = None, orders: int | None = None,
+                         mix: str | None = None) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
     from common.config.security import identity_of
     from controller.service import ControllerService
 
     config, model = load_station(config_path)
+    production = plan_from_options(orders, mix, config.production, model, config_path)
     db_path = db or config.controller.db
     if fresh:
         for suffix in ("", "-wal", "-shm"):
@@ -57,7 +63,7 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
     stop = stop_on_signals()
     async with ZenohBus(zconfig) as bus:
         service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold,
-                                    record=record)
+                                    record=record, production=production)
         log = logging.getLogger("statehub.controller")
         log.info("controller %s: station %s, %d resources, %d operations; %s", service.controller_id,
                  config.station.name, len(service.hubs_of), len(model.operations), security_banner(config))
@@ -76,7 +82,7 @@ def serve(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db,
                                           fresh=args.fresh, mirror_wait_s=args.mirror_wait, hold=args.hold,
-                                          certs=args.certs, record=record))
+                                          certs=args.certs, record=record, orders=args.orders, mix=args.mix))
     except ControllerConflict as exc:
         print(f"controller: {exc}", file=sys.stderr)
         return EXIT_CONFLICT

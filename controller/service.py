@@ -10,6 +10,10 @@ change.
 On start it restores what it persisted, waits (bounded) for every hub's mirror, takes
 the command state from the mirrors, and goes on where it was; a resource whose mirror is
 late is held, sent nothing, until it comes (controller/command_hold.py).
+
+Orders (controller/production/): the order book lives in the same SQLite file. A fresh start queues the
+run's `ProductionPlan`; the loop finishes and starts orders after each tick; `{station}/ctl/orders` is
+answered on this event loop, the thread that owns the SQLite connection, and an order added wakes the loop.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import msgspec
 
 from common.bus.protocol import Bus
 from common.config.hubs_toml import StationConfig
+from common.config.production import ProductionPlan
 from common.model import Kind, Model, Value
 from common.plumbing.sdnotify import Notifier
 from common.plumbing.tasks import cancel_and_wait
@@ -42,6 +47,9 @@ from .loop import ControlLoop
 from .loopmeter import LoopMeter
 from .planclient import PlanClient
 from .planworker import READY_WAIT_S, PlannerProcess
+from .production.book import REQUESTED_META, OrderBook
+from .production.flow import OrderFlow
+from .production.service import OrdersService
 from .recording.schema import RunOutcome
 from .stack import build_controller_stack
 from .state import StateStore
@@ -56,7 +64,9 @@ TASKS_END_S = 2.0  # for the loop's tasks to end once cancelled, before the stat
 class ControllerService:
     def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
                  mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None,
-                 planner_process: bool = True, hold: bool = False, record: RunMeta | None = None) -> None:
+                 planner_process: bool = True, hold: bool = False, record: RunMeta | None = None,
+                 production: ProductionPlan | None = None) -> None:
+        """`production`: the orders to queue on a fresh start (a book that never had one)."""
         self.config = config
         self.model = model
         self.bus = bus
@@ -67,6 +77,8 @@ class ControllerService:
         self.clock = StepClock()  # the core's: one reading per step, what the recording and a replay use
         self.core = stack.control_core(self.clock)
         self.store = StateStore(db or config.controller.db)
+        self.production = production
+        self.orders = OrderFlow(OrderBook(self.store, model))
         self.station_hold = StationHold(bus, self.keys, self.store, self.controller_id)
         self.hubs_of = {r: hub.name for r, hub in config.resources.items()}
         self.watchdog = Watchdog(self.hubs_of, stale_after=config.controller.stale_after_s,
@@ -94,7 +106,7 @@ class ControllerService:
         self.planner_process = PlannerProcess(config.station.model) if planner_process else None
         self.planning = PlanClient(self.loop, self.planner_process, self._dirty.set)
         self.status_publisher = StatusPublisher(config.station.name, self.controller_id, self.core, self.watchdog,
-                                                self.hubs_of, self.meter)
+                                                self.hubs_of, self.meter, self.orders)
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
 
     # --- start-up -------------------------------------------------------------------------
@@ -102,15 +114,23 @@ class ControllerService:
         values, notes = self.store.load(self.model)
         for note in notes:
             log.warning(note)
-        requested = self.store.meta("requested")
+        requested = self.store.meta(REQUESTED_META)
         if values:
             self.core.load(values)
             log.info("restored %d persisted values from %s", len(values), self.store.path)
+        if self.production is not None:
+            queued = self.orders.queue(self.production)
+            if queued:
+                log.info("queued %d orders: %s", queued, self.production.describe())
         if self.requested is None:
-            everything = [] if self.hold else [op.name for op in self.model.operations]
+            # A station running orders requests what its running order's start stored (book.next), nothing
+            # between two orders; one that never had an order runs every operation once, as it always did.
+            orders = not self.orders.book.empty()
+            everything = [] if self.hold or orders else [op.name for op in self.model.operations]
             self.requested = list(requested) if isinstance(requested, list) else everything
         self.loop.request(self.requested)
-        self.store.save({}, {"requested": self.requested})
+        self.store.save({}, {REQUESTED_META: self.requested})
+        self.loop.run_orders(self.orders)
         self._last_persisted = {i: self.core.state[i] for i in self.persisted_indices}
 
     async def _take_mirrors(self) -> None:
@@ -157,6 +177,8 @@ class ControllerService:
             requests = self.loop.requests(persist=lambda ops: self.store.save({}, {"requested": ops}),
                                           wake=self._dirty.set)
             tasks.append(asyncio.create_task(requests.serve(self.bus, self.keys.ctl("request")), name="requests"))
+            orders = OrdersService(self.orders.book, changed=self._dirty.set)
+            tasks.append(asyncio.create_task(orders.serve(self.bus, self.keys), name="orders"))
             await self._tick_loop(stop)
         finally:
             await cancel_and_wait([*tasks, *self.planning.tasks()], TASKS_END_S, log)
@@ -202,6 +224,8 @@ class ControllerService:
             log.info("operation %s started", name)
         for name in result.finished:
             log.info("operation %s finished", name)
+        for event in ticked.orders:
+            log.info("%s", event.text)
         self.status_publisher.ticked(result)
         self._persist()
         self.commands.publish(ticked.commands)

@@ -16,6 +16,7 @@ from common.wire.messages import encode
 from .control import ControlCore
 from .engine import TickResult
 from .loopmeter import LoopMeter
+from .production.flow import OrderFlow
 from .statusfeed import PlanBook, StatusDiet
 from .watchdog import Watchdog
 
@@ -25,14 +26,16 @@ STATE_SNAPSHOT_PERIOD_S = 1.0
 
 class StatusPublisher:
     def __init__(self, station: str, controller_id: str, core: ControlCore, watchdog: Watchdog,
-                 resources: Mapping[str, str], meter: LoopMeter) -> None:
-        """`resources`: each supervised resource's hub, in the order the status lists them."""
+                 resources: Mapping[str, str], meter: LoopMeter, orders: OrderFlow | None = None) -> None:
+        """`resources`: each supervised resource's hub, in the order the status lists them; `orders`: the
+        station's orders (a station that has had one is finished when none runs or waits)."""
         self.station = station
         self.controller_id = controller_id
         self.core = core
         self.watchdog = watchdog
         self.resources = resources
         self.meter = meter
+        self.orders = orders
         self.started = time.monotonic()
         self.op_since: dict[str, float] = {}  # when each operation last started or finished
         self.plan_book = PlanBook(core.compiled, core)
@@ -72,11 +75,13 @@ class StatusPublisher:
             h = self.watchdog.health(resource)
             health.append(ResourceHealthInfo(resource, h.hub, h.healthy, h.reason, h.age, h.mirror_lag, h.note))
         events = core.events
+        orders = self.orders if self.orders is not None and not self.orders.book.empty() else None
         return StatusMessage(
             station=self.station, controller=self.controller_id, time=time.time(),
             uptime=now - self.started, operations=operations, health=health, plan=self.plan_book.info(),
             plans=events.plans, replans=events.replans, no_plans=events.no_plans,
-            abilities=events.abilities_started, paused=core.paused, finished=core.all_finished(),
+            abilities=events.abilities_started, paused=core.paused,
+            finished=core.all_finished() if orders is None else orders.idle(),
             events=events.log.recent(EVENT_WINDOW), events_total=events.log.total,
-            loop=self.meter.take(),
+            loop=self.meter.take(), production=None if orders is None else orders.info(),
         )

@@ -189,12 +189,13 @@ def cmd_up(args: argparse.Namespace) -> int:
                              f"in that file's [station] model, or use --in-process")
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record,
-                          chaos=args.chaos))
+                          chaos=args.chaos, orders=args.orders, mix=args.mix, production=production))
     from controller.planner.policy import VIRTUAL_BUDGET
 
     from .local.inprocess import emulated_delays, run_in_process
 
     model, in_process_config = _in_process_station(args)
+    in_process_plan = None
     if args.orders is not None or args.mix is not None:
         in_process_plan = plan_from_options(args.orders, args.mix, ProductionConfig(), model, "--orders")
         if in_process_plan is not None:
@@ -212,11 +213,13 @@ def cmd_up(args: argparse.Namespace) -> int:
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None,
                              delays=emulated_delays(in_process_config) if in_process_config is not None else None,
                              realtime=args.realtime, time_limit=args.time_limit,
-                             report=lambda line: print(line, flush=True), budget=budget, recording=recording)
+                             report=lambda line: print(line, flush=True), budget=budget, recording=recording,
+                             production=in_process_plan)
     print()
-    print(f"{'finished' if summary.finished else 'NOT finished'}: {summary.operations_finished}/"
-          f"{summary.operations_total} operations, {summary.abilities} abilities started, {summary.plans} plans, "
-          f"{summary.replans} replans, {summary.no_plans} goals without plan")
+    done = (f"{len(summary.orders)}/{len(in_process_plan.orders)} orders" if in_process_plan is not None else
+            f"{summary.operations_finished}/{summary.operations_total} operations")
+    print(f"{'finished' if summary.finished else 'NOT finished'}: {done}, {summary.abilities} abilities started, "
+          f"{summary.plans} plans, {summary.replans} replans, {summary.no_plans} goals without plan")
     print(f"station time {summary.emulated_seconds:.1f} s (emulated), wall {summary.wall_seconds:.1f} s, "
           f"planning {summary.planning_seconds:.2f} s")
     if not summary.finished:

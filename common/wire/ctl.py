@@ -16,6 +16,7 @@ import msgspec
 from common.model import OperationState
 from common.model.predicates import format_value
 from common.wire.messages import Message
+from common.wire.orders import Order
 
 
 class ResourceHealthInfo(msgspec.Struct, frozen=True):
@@ -321,12 +322,60 @@ class Recovered(Event, tag="recovered", frozen=True):
     template: ClassVar[str] = "watchdog: {resource} recovered"
 
 
+class OrderStarted(Event, tag="order_started", frozen=True):
+    """The station took the next order: its product's variables got their start values, its operations are
+    requested (controller/production/book.py)."""
+
+    order: int
+    product_id: str
+    variant: str
+    operations: int
+    template: ClassVar[str] = "order {order} {product_id} ({variant}) started: {operations} operations"
+
+
+class OrderFinished(Event, tag="order_finished", frozen=True):
+    """Every operation of the running order finished: its product left, its state is archived with it and the
+    product's variables and operations are back at their initial values. `line`: its cycle and the busiest
+    resources (controller/production/throughput.py `order_line`)."""
+
+    order: int
+    product_id: str
+    variant: str
+    cycle_s: float
+    line: str
+    template: ClassVar[str] = "{line}"
+
+
 ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | Livelock | HubAlive
                 | HubGone | MirrorsMissing | HoldReleased | ForbiddenState | ForbiddenStateCleared | RequestAnswered
-                | Unhealthy | Recovered | ControllerChanged)
+                | Unhealthy | Recovered | ControllerChanged | OrderStarted | OrderFinished)
 
 
 EVENT_WINDOW = 20  # the newest events of a full status
+RECENT_ORDERS = 5  # the newest finished orders a status carries
+
+
+class OrderDone(msgspec.Struct, frozen=True):
+    """A finished order, on the order book's clock (wall time live, virtual time in process)."""
+
+    order: int
+    product_id: str
+    variant: str
+    started: float
+    finished: float
+
+    @property
+    def cycle_s(self) -> float:
+        return self.finished - self.started
+
+
+class ProductionInfo(msgspec.Struct, frozen=True):
+    """The station's orders, in a status: the running one, how many wait and are done, the newest finished."""
+
+    current: Order | None = None
+    queued: int = 0
+    done: int = 0
+    recent: list[OrderDone] = msgspec.field(default_factory=list)  # the newest RECENT_ORDERS, newest last
 
 
 class StatusMessage(Message, kw_only=True):
@@ -356,6 +405,7 @@ class StatusMessage(Message, kw_only=True):
     events: list[ConsoleEvent] = msgspec.field(default_factory=list)  # newest last
     events_total: int = 0  # events the controller logged since it started
     loop: LoopStats | None = None  # None from a controller that does not measure itself
+    production: ProductionInfo | None = None  # None from a station running no orders (or an older controller)
 
 
 class StateSnapshot(Message, kw_only=True):

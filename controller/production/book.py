@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+from common.config.production import ProductionPlan
 from common.model import Model, OperationState, Value
 from common.wire.orders import Order, OrderState, ParameterValue
 from controller.state import StateStore
@@ -99,15 +100,33 @@ class OrderBook:
             (last,) = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM orders").fetchone()
             ids = range(last + 1, last + 1 + count)
             for order_id in ids:
-                product = product_id or f"{self.model.name}-{order_id:05d}"
-                try:
-                    self.db.execute(
-                        "INSERT INTO orders(id, product_id, variant, parameters, state, origin, queued_at) "
-                        "VALUES(?, ?, ?, ?, ?, ?, ?)",
-                        (order_id, product, variant, json.dumps(parameters), OrderState.QUEUED.value, origin, now))
-                except sqlite3.IntegrityError:
-                    raise OrderError(f"product {product!r} already has an order") from None
+                self._insert(order_id, variant, product_id, parameters, origin, now)
         return [self.get(order_id) for order_id in ids]
+
+    def add_plan(self, plan: ProductionPlan) -> list[Order]:
+        """Queue every order of `plan` in one commit: a controller killed while queueing it finds all or none."""
+        for planned in plan.orders:
+            self._check(planned.variant, dict(planned.parameters or {}), 1, planned.product_id)
+        now = self.clock()
+        with self.db:
+            self.db.execute("BEGIN")
+            (last,) = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM orders").fetchone()
+            ids = range(last + 1, last + 1 + len(plan.orders))
+            for order_id, planned in zip(ids, plan.orders, strict=True):
+                self._insert(order_id, planned.variant, planned.product_id, dict(planned.parameters or {}),
+                             plan.source, now)
+        return [self.get(order_id) for order_id in ids]
+
+    def _insert(self, order_id: int, variant: str, product_id: str, parameters: Mapping[str, ParameterValue],
+                origin: str, now: float) -> None:
+        product = product_id or f"{self.model.name}-{order_id:05d}"
+        try:
+            self.db.execute(
+                "INSERT INTO orders(id, product_id, variant, parameters, state, origin, queued_at) "
+                "VALUES(?, ?, ?, ?, ?, ?, ?)",
+                (order_id, product, variant, json.dumps(dict(parameters)), OrderState.QUEUED.value, origin, now))
+        except sqlite3.IntegrityError:
+            raise OrderError(f"product {product!r} already has an order") from None
 
     def cancel(self, order_id: int) -> Order:
         order = self.get(order_id)
@@ -145,8 +164,15 @@ class OrderBook:
         return None if row is None else _from_row(row)
 
     def queued(self) -> int:
-        (count,) = self.db.execute("SELECT COUNT(*) FROM orders WHERE state=?", (OrderState.QUEUED.value,)).fetchone()
+        return self.count(OrderState.QUEUED)
+
+    def count(self, state: OrderState) -> int:
+        (count,) = self.db.execute("SELECT COUNT(*) FROM orders WHERE state=?", (state.value,)).fetchone()
         return int(count)
+
+    def empty(self) -> bool:
+        """No order was ever added (a fresh start)."""
+        return self.db.execute("SELECT 1 FROM orders LIMIT 1").fetchone() is None
 
     # --- what the control loop calls -----------------------------------------------------------
     def next(self) -> OrderStart | None:

@@ -3,9 +3,11 @@
 Each controller start records into a file of its own, so a run whose controller was restarted has
 several; read together in the order they began, they say what the controller did over the whole
 run. An operation's finish counts once: finishing again without a recorded reset in between
-(`finished -> initial`, the console's reset) is a redone operation, the failure a controller
-restart must never cause. A restarted controller restores the operation states it persisted
-(a `restore` record); announcing an operation it restored as finished is no new finish.
+(`finished -> initial`, the console's reset or an order's end) is a redone operation, the failure a
+controller restart must never cause. A restarted controller restores the operation states it persisted
+(a `restore` record); announcing an operation it restored as finished is no new finish. Restoring one
+as initial that was counted finished is a reset: an order's end, which the order book commits with the
+product's reset (controller/production/book.py), by a controller killed before it recorded the reset.
 """
 
 from __future__ import annotations
@@ -78,10 +80,14 @@ def count_finishes(records: Iterable[Record], into: DoneOnce) -> None:
             for key, value in data.values.items():
                 if key.startswith(OPERATION_PREFIX):
                     op = key.removeprefix(OPERATION_PREFIX)
+                    first_seen = op not in state  # this controller's start-up restore, not an order's values
                     state[op] = str(value)
-                    if state[op] == FINISHED and into.finishes.get(op, 0) == into.resets.get(op, 0):
-                        into.finishes[op] = into.finishes.get(op, 0) + 1
+                    finishes, resets = into.finishes.get(op, 0), into.resets.get(op, 0)
+                    if state[op] == FINISHED and finishes == resets:
+                        into.finishes[op] = finishes + 1
                         into.restored_only.add(op)
+                    elif state[op] == INITIAL and first_seen and finishes > resets:
+                        into.resets[op] = resets + 1
         elif isinstance(data, OperationRecord):
             op = record.key
             if data.after == FINISHED and state.get(op) != FINISHED:

@@ -4,7 +4,8 @@ A thin shell around the controller's own loop (controller/loop.py), with an effe
 hubs: tick, plan (here and now, by counts), let the devices' effects fall due, and move virtual time on
 to the next one. Time is virtual by default (the run is as fast as planning allows); `realtime=True`
 sleeps through the emulated delays as a live station would. Each device's `delay` of hubs.toml applies
-as it does to `hubctl up`'s emulated hubs.
+as it does to `hubctl up`'s emulated hubs. With a `ProductionPlan` the station runs its orders, one
+product after another, from an order book in memory on the virtual clock, until none is left.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from common.config.hubs_toml import StationConfig
+from common.config.production import ProductionPlan
 from common.model import Duration, Model, OperationState
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.cycle import CycleReport, effect_seconds
@@ -21,9 +23,13 @@ from controller.deorder import Execution
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.planner.policy import VIRTUAL_BUDGET
+from controller.production.book import OrderBook
+from controller.production.flow import OrderFlow
+from controller.production.throughput import OrderThroughput, RunThroughput, summary_lines
 from controller.recording.hooks import RunRecorder, Sink, VirtualClock
 from controller.recording.schema import RunOutcome
 from controller.stack import build_controller_stack
+from controller.state import StateStore
 from hubs.emulator import EffectEmulator
 
 Reporter = Callable[[str], None]
@@ -46,6 +52,8 @@ class RunSummary:
     reason: str = ""
     cycle: CycleReport | None = None  # cycle time, the bound, each resource's idle time
     log: list[str] = field(default_factory=list)  # the event log (its newest entries), as text
+    orders: list[OrderThroughput] = field(default_factory=list)  # the orders finished, when running orders
+    throughput: RunThroughput | None = None  # engines per hour and cycle times, when running orders
 
     @property
     def finished(self) -> bool:
@@ -70,10 +78,12 @@ def run_in_process(
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
     execution: Execution = Execution.PARTIAL_ORDER,
+    production: ProductionPlan | None = None,
 ) -> RunSummary:
     """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
     type's default elsewhere); `time_limit`: emulated seconds; `recording`: where the run is recorded
-    (controller/recording/hooks.py), closed when it ends."""
+    (controller/recording/hooks.py), closed when it ends; `production`: the orders to run, one product after
+    another (None: every operation once)."""
     say = report or (lambda _line: None)
     # The model tables are built before the first request, as the controller's planner process does.
     stack = build_controller_stack(model, prepare=True)
@@ -83,7 +93,13 @@ def run_in_process(
     core.engine.execution = execution  # the trace only for the cycle benchmark's "before"
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
                        effect_seconds(model, delays))
-    loop.request([op.name for op in model.operations])
+    flow = None
+    if production is None:
+        loop.request([op.name for op in model.operations])
+    else:
+        flow = OrderFlow(OrderBook(StateStore(":memory:"), model, clock))
+        flow.queue(production)
+        loop.run_orders(flow)
     emulator = EffectEmulator(model, (r.name for r in model.resources), speed=speed, seed=seed, failure=failure,
                               delays=delays)
     deliberate = {t.name for t in compiled.deliberate}
@@ -96,7 +112,8 @@ def run_in_process(
     while True:
         now = clock.now
         progress_before, state_before = core.progress, core.state
-        result = loop.tick().result
+        ticked = loop.tick()
+        result = ticked.result
         for name in result.started:
             say(f"{now:7.1f}s  start  {name}")
         for name in result.fired:
@@ -105,7 +122,9 @@ def run_in_process(
         for name in result.finished:
             done = sum(1 for op in model.operations if core.op_state(op.name) is OperationState.FINISHED)
             say(f"{now:7.1f}s  done   {name}  [{done}/{total}]")
-        if core.all_finished():
+        for order_event in ticked.orders:
+            say(f"{now:7.1f}s  {order_event.text}")
+        if loop.orders_done() if flow is not None else core.all_finished():
             break
         # A tick that changed anything (a step fired, a plan kept from a new state) may enable the next
         # step at once: tick again before time moves on, as the live controller's next tick would.
@@ -147,6 +166,10 @@ def run_in_process(
     cycle = loop.cycle_report()
     for line in cycle.lines():
         say(line)
+    throughput = None if flow is None else flow.run_figures()
+    if throughput is not None:
+        for line in summary_lines(throughput):
+            say(line)
     events = core.events
     return RunSummary(
         outcome=outcome,
@@ -162,4 +185,6 @@ def run_in_process(
         reason=reason,
         cycle=cycle,
         log=[event.text for event in events.log],
+        orders=[] if flow is None else list(flow.finished),
+        throughput=throughput,
     )

@@ -4,7 +4,8 @@ The controller and every hub of hubs.toml run as their own processes (what syste
 runs on the real station), with emulated devices by default, restarted as their units
 restart them (supervisor.py). This process watches the controller's status and prints
 progress, then a summary; Ctrl-C stops everything. `chaos` kills some of them on the way
-(chaos.py).
+(chaos.py). With orders (`--orders N --mix ...`, or [production] of hubs.toml) the controller runs one
+product after another; this prints a line per finished order and, at the end, the throughput.
 """
 
 from __future__ import annotations
@@ -24,12 +25,14 @@ from common.bus.station_net import security_banner
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import StationConfig, load_station
 from common.config.modes import DeviceMode
+from common.config.production import ProductionPlan
 from common.config.security import operator_identity
 from common.model import Model, OperationState
 from common.plumbing.lifecycle import free_port
-from common.wire.ctl import Event, PlanDetails, StatusMessage
+from common.wire.ctl import Event, OrderDone, OrderFinished, OrderStarted, PlanDetails, StatusMessage
 from common.wire.messages import MessageError
 from controller.console.statusview import StatusFollower, fetch_plan
+from controller.production.throughput import OrderThroughput, run_throughput, summary_lines
 from deploy.remote.restart_policy import UP_RESTART, RestartPolicy
 from deploy.runs.cli import timeline_after_run
 
@@ -86,6 +89,11 @@ class Options:
     chaos: int = 0  # kill -9 this many processes at moments drawn from `seed` (chaos.py)
     chaos_plan: ChaosPlan | None = None  # these kills instead of drawing `chaos` of them
     restart: RestartPolicy = UP_RESTART  # how a process that exits is restarted (the units' policy)
+    # The orders: `--orders N --mix ...` handed to the controller, which queues them on its fresh start (as it
+    # queues [production] of hubs.toml without them); `production` is the plan they make, for the progress.
+    orders: int | None = None
+    mix: str | None = None
+    production: ProductionPlan | None = None
 
 
 def child_commands(config: StationConfig, options: Options, port: int, certs: Path | None = None) -> list[Child]:
@@ -95,6 +103,8 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
                   "--db", str(run_dir / "controller.sqlite")]
     if options.hold:
         controller.append("--hold")
+    if options.orders is not None:
+        controller += ["--orders", str(options.orders)] + (["--mix", options.mix] if options.mix else [])
     controller += ["--run-mode", "up", "--run-seed", str(options.seed)] if options.record else ["--no-record"]
     # A restarted controller resumes from its SQLite file: only its first start may forget it.
     children = [Child("controller", controller + secured, run_dir / "controller.log",
@@ -114,9 +124,12 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
 class Progress:
     """Prints what changed in the controller's status: operations, and what each resource is doing."""
 
-    def __init__(self, say: Say, total: int) -> None:
+    def __init__(self, say: Say, total: int, model: Model | None = None) -> None:
         self.say = say
         self.total = total
+        self.model = model
+        self.orders_done: dict[int, OrderDone] = {}  # by order id, as the statuses reported them
+        self.operations_before = 0  # the operations of the orders done: the run's progress goes on over orders
         self.op_states: dict[str, OperationState] = {}
         self.activity = ""
         self.last_activity_at = 0.0
@@ -133,15 +146,42 @@ class Progress:
             self._controller, self._events_seen = status.controller, 0
         new = max(0, status.events_total - self._events_seen)
         for event in status.events[len(status.events) - min(new, len(status.events)):]:
+            if isinstance(event, OrderStarted | OrderFinished):
+                self.say(f"          {status.uptime:6.1f}s  {event.text}")
             if event.fault:
                 self.faults += 1
                 self.last_fault = event
         self._events_seen = status.events_total
 
+    def _read_orders(self, status: StatusMessage) -> None:
+        production = status.production
+        if production is None:
+            return
+        for done in production.recent:
+            if done.order not in self.orders_done:
+                self.orders_done[done.order] = done
+                if self.model is not None:
+                    self.operations_before += len(self.model.variant_by_name[done.variant].requested(
+                        self.model.operations))
+
+    def finished_operations(self, status: StatusMessage) -> int:
+        """Operations finished over the run: those of the orders done, and the running one's so far."""
+        return self.operations_before + sum(1 for op in status.operations if op.state is OperationState.FINISHED)
+
+    def throughput_lines(self) -> list[str]:
+        """Engines per hour and cycle times of the orders done, on the order book's clock."""
+        done = sorted(self.orders_done.values(), key=lambda o: o.order)
+        if not done:
+            return []
+        figures = [OrderThroughput(o.order, o.product_id, o.variant, o.started, o.finished, {}) for o in done]
+        span = max(o.finished for o in done) - min(o.started for o in done)
+        return summary_lines(run_throughput(figures, span))
+
     def update(self, status: StatusMessage, plan: PlanDetails | None = None) -> None:
         """Print what changed; `plan`: the details of the plan under way (its steps), if known."""
         say = self.say
         self._read_events(status)
+        self._read_orders(status)
         done = sum(1 for op in status.operations if op.state is OperationState.FINISHED)
         for op in status.operations:
             old = self.op_states.get(op.name)
@@ -179,7 +219,14 @@ def chaos_plan(options: Options, children: list[Child], model: Model) -> ChaosPl
         return options.chaos_plan
     if not options.chaos:
         return None
-    return plan_chaos(options.chaos, options.seed, [c.name for c in children], len(model.operations))
+    return plan_chaos(options.chaos, options.seed, [c.name for c in children], run_operations(options, model))
+
+
+def run_operations(options: Options, model: Model) -> int:
+    """The operations the run does: every one once, or those of each order's variant."""
+    if options.production is None:
+        return len(model.operations)
+    return sum(len(model.variant_by_name[o.variant].requested(model.operations)) for o in options.production.orders)
 
 
 async def run_station(options: Options, say: Say = print) -> int:
@@ -221,7 +268,7 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
         say(f"  chaos (seed {plan_of_chaos.seed}): kill -9 {plan_of_chaos.describe() or 'nothing'}")
         chaos = Chaos(plan_of_chaos, supervisor.kill, say, time.monotonic)
     await supervisor.start()
-    progress = Progress(say, len(model.operations))
+    progress = Progress(say, len(model.operations), model)
     result = 1
     last: StatusMessage | None = None
     try:
@@ -239,8 +286,7 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
                     result = 1
                     break
                 if chaos is not None:
-                    chaos.observe(None if last is None else
-                                  sum(1 for op in last.operations if op.state is OperationState.FINISHED))
+                    chaos.observe(None if last is None else progress.finished_operations(last))
                 if time.monotonic() - began > options.time_limit:
                     say(f"time limit of {options.time_limit:.0f} s reached")
                     break
@@ -271,9 +317,17 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
     if last is not None:
         done = sum(1 for op in last.operations if op.state is OperationState.FINISHED)
         say("")
-        say(f"{'finished' if result == 0 else 'NOT finished'}: {done}/{len(last.operations)} operations, "
+        production = last.production
+        done_text = (f"{production.done}/{production.done + production.queued + (production.current is not None)} "
+                     f"orders" if production is not None else f"{done}/{len(last.operations)} operations")
+        say(f"{'finished' if result == 0 else 'NOT finished'}: {done_text}, "
             f"{last.abilities} abilities started, {last.plans} plans, {last.replans} replans, "
             f"{last.no_plans} goals without a plan, in {elapsed:.1f} s")
+        if production is not None:
+            say(f"orders: {production.done} done, {production.queued} queued"
+                + (f", {production.current.describe()}" if production.current is not None else ""))
+            for line in progress.throughput_lines():
+                say(line)
         if progress.last_fault is not None:
             say(f"faults seen: {progress.faults}; last: {progress.last_fault.text}")
         if result != 0:
