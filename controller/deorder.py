@@ -14,7 +14,9 @@ so that the operator mounts the filters while the robot tightens the bolts. Step
 * **its threats**: a later step j that writes a value falsifying k's guard (or changing a value k
   copies) is ordered after k. An effect or automatic cannot be held back, so the nearest deliberate
   steps it descends from (through producers and write order) that come after k in the plan are
-  ordered after k as well: a command is what sets a device going.
+  ordered after k as well: a command is what sets a device going. One that comes before k sets the
+  threat going before k can fire, so it waits for k's other producers: k then fires as soon as the
+  command's device gives it the rest (a tracking step that needs a transient value).
 
 Every dependency points to an earlier step of the sequence, so the order is acyclic. `trace` keeps
 the former rule (a step waits for every earlier step it shares a variable with, and a command for
@@ -124,6 +126,13 @@ def order(compiled: CompiledModel, plan: Plan, execution: Execution = Execution.
         if transitions[j].kind is not TransitionKind.DELIBERATE:
             for d in _nearest_deliberate(j, base, transitions):
                 depends[d] |= {k for k in consumers if k < d}
+                # d sets j off before k: nothing can hold j back once d is sent (the nutrunner resets itself
+                # after torque), so k must be able to fire as soon as d's device gives it what it needs. d
+                # therefore waits for k's other producers (the operator instructed to tighten pipe 2 before
+                # the nutrunner runs, or its torque is never recorded for pipe 2).
+                for k in consumers:
+                    if d < k:
+                        depends[d] |= {p for p in producers[k] if p < d}
     for j in range(len(transitions)):
         depends[j].discard(j)
     return Ordering(tuple(frozenset(d) for d in depends), tuple(frozenset(p) for p in producers), trace,
