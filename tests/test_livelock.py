@@ -16,13 +16,11 @@ from tests.test_control import lamp_beside_a_gauge
 GOALS = frozenset({"LampOn"})
 
 
-def test_the_watch_counts_requests_from_a_state_until_a_step_reaches_a_new_state_or_an_operation_finishes() -> None:
+def test_the_watch_counts_requests_from_a_state_until_an_operation_finishes() -> None:
     watch = LivelockWatch()
     here, there = ("a",), ("b",)
     assert watch.asked(GOALS, here) == (Repeat.FIRST, 1)
-    watch.stepped(there)  # a state no round went through before: progress
-    assert watch.asked(GOALS, here) == (Repeat.FIRST, 1)
-    watch.stepped(there)  # the same round again: no progress
+    watch.stepped(there)  # even a state no round went through before: devices interleave differently each round
     assert watch.asked(GOALS, here) == (Repeat.AGAIN, 2)
     assert watch.asked(frozenset({"Other"}), here) == (Repeat.FIRST, 1)
     assert watch.asked(GOALS, here) == (Repeat.LOOP, LOOP_AFTER)
