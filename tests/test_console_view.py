@@ -19,9 +19,11 @@ from common.wire.ctl import (
     MirrorsMissing,
     NoPlanFound,
     OperationInfo,
+    OrderDone,
     PlanFound,
     PlanKept,
     PlannedAlone,
+    ProductionInfo,
     Recovered,
     ReplanCause,
     Replanned,
@@ -34,6 +36,7 @@ from common.wire.ctl import (
     Unhealthy,
 )
 from common.wire.messages import decode, encode
+from common.wire.orders import Order, OrderState
 from controller.console.station import StationInfo
 from controller.console.table import RowTable
 from controller.console.view import (
@@ -44,6 +47,7 @@ from controller.console.view import (
     StateView,
     event_text,
     parse_force,
+    production_summary,
     split_override,
 )
 from deploy.cli import build_parser
@@ -215,3 +219,12 @@ def test_resource_rows_show_health_and_a_note_about_another_controller() -> None
     assert "ok" in text["nr"] and "intruder" not in text["nr"]
     assert "ok (command seq 9 from intruder refused)" in text["ur"]
     assert "hub gone" in text["lift"]
+
+
+def test_the_status_line_shows_the_current_order_the_queue_and_the_last_cycles() -> None:
+    assert production_summary(None) == ""  # a station without orders says nothing of them
+    running = Order(id=3, product_id="engine-3", variant="light", state=OrderState.RUNNING)
+    done = [OrderDone(1, "engine-1", "full", 0.0, 36.5), OrderDone(2, "engine-2", "light", 36.5, 62.3)]
+    summary = production_summary(ProductionInfo(current=running, queued=2, done=2, recent=done))
+    assert summary == "order 3 engine-3 (light), 2 queued, 2 done; last cycles: full 36.5 s, light 25.8 s"
+    assert production_summary(ProductionInfo(queued=0, done=5)) == "no order, 0 queued, 5 done"

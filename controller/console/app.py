@@ -61,6 +61,7 @@ from .view import (
     parse_force,
     plan_rows,
     plan_summary,
+    production_summary,
     resource_rows,
     split_override,
 )
@@ -211,6 +212,9 @@ class ConsoleApp(App[None]):
                 line.append("  FINISHED", "bold green")
             line.append(f"  operations {done}/{len(status.operations)}, plans {status.plans}, "
                         f"replans {status.replans}, no plan {status.no_plans}")
+            orders = production_summary(status.production)
+            if orders:
+                line.append(f"  |  {orders}")
         if self._reply_line:
             line.append("  |  ")
             line.append_text(self._reply_line)

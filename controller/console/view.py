@@ -22,6 +22,7 @@ from common.wire.ctl import (
     OperationInfo,
     PlanDetails,
     PlanInfo,
+    ProductionInfo,
     Recovered,
     Replanned,
     RequestAnswered,
@@ -141,6 +142,18 @@ def plan_summary(plan: PlanInfo | None) -> str:
     if plan is None or not plan.id:
         return "no plan" + (f" for {', '.join(plan.goals)}" if plan is not None and plan.goals else "")
     return f"{plan.done_count}/{plan.steps} steps for {clip(', '.join(plan.goals), 60)}"
+
+
+def production_summary(production: ProductionInfo | None) -> str:
+    """The current order, the queue and the last cycle times, for the status line ("" when the station runs no
+    orders)."""
+    if production is None:
+        return ""
+    current = production.current
+    running = f"order {current.id} {current.product_id} ({current.variant})" if current is not None else "no order"
+    recent = ", ".join(f"{done.variant} {done.cycle_s:.1f} s" for done in production.recent[-3:])
+    return (f"{running}, {production.queued} queued, {production.done} done"
+            + (f"; last cycles: {recent}" if recent else ""))
 
 
 # --- global state ------------------------------------------------------------------------------
