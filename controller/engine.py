@@ -66,9 +66,9 @@ class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
     def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None,
-                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
+                 execution: Execution = Execution.TRACE) -> None:
         """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
-        `execution`: how steps wait for each other (the trace only for the cycle benchmark's "before")."""
+        `execution`: how steps wait for each other (the trace by default; controller/deorder.py says why)."""
         self.plan = plan
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = [
@@ -246,7 +246,7 @@ class TickResult:
 
 class Engine:
     def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None,
-                 execution: Execution = Execution.PARTIAL_ORDER) -> None:
+                 execution: Execution = Execution.TRACE) -> None:
         """`delays`: seconds each effect takes, by effect transition name (default: the model's,
         common/model/durations.py); they bound how long a step is held for a due effect. `execution`:
         how the plans this engine follows are ordered (`PlanProgress`)."""

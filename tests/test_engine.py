@@ -19,6 +19,7 @@ from common.model import (
 )
 from common.model.compiled import CompiledModel
 from common.wire.ctl import ReplanReason
+from controller.deorder import Execution
 from controller.engine import Engine, PlanProgress
 from controller.planner import Plan, Planner
 from tests.test_model import nutrunner_resource
@@ -168,6 +169,23 @@ def test_a_command_waits_for_the_earlier_steps_that_read_its_device() -> None:
     assert names.index("e.record") in progress.depends[names.index("a.switch_off.enabled")]
 
 
+def test_an_effect_seen_before_a_record_that_needed_the_old_value_is_a_deviation() -> None:
+    """As a trace (the default execution): the operator is sent at once, and the camera's early effect is a
+    deviation."""
+    base = lamp_and_zone()
+    seen = estimated("e.seen_e", initial=False)
+    record = tracking("e.record", all_of("a.on_m", "z.zone_m == outside", "!e.seen_e"), "e.seen_e := true")
+    c = CompiledModel(Model("lzr", base.resources, (seen,), (record,)))
+    plan = plan_for(c, c.initial(), "e.seen_e && z.zone_m == shared")
+    progress = PlanProgress(c, plan)
+    engine = Engine(c)
+    tick = engine.tick(c.initial(), progress=progress, disabled=frozenset({"a"}))
+    assert tick.fired == ["o.send.enabled"]
+    tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=frozenset({"a"}))
+    assert tick.replan is not None and tick.replan.reason is ReplanReason.LEFT_PLAN
+    assert "z.zone_m" in tick.replan.detail
+
+
 def test_a_command_whose_effect_would_undo_a_record_waits_for_it_and_a_change_before_it_is_a_deviation() -> None:
     base = lamp_and_zone()
     seen = estimated("e.seen_e", initial=False)
@@ -176,8 +194,8 @@ def test_a_command_whose_effect_would_undo_a_record_waits_for_it_and_a_change_be
     plan = plan_for(c, c.initial(), "e.seen_e && z.zone_m == shared")
     names = [s.transition for s in plan.steps]
     assert names.index("e.record") < names.index("z.see.executing.effect")
-    progress = PlanProgress(c, plan)
-    engine = Engine(c)
+    progress = PlanProgress(c, plan, execution=Execution.PARTIAL_ORDER)
+    engine = Engine(c, execution=Execution.PARTIAL_ORDER)
     # Sending the operator sets off the camera's effect, which takes away the zone the record needs:
     # the operator waits for the record, while the lamp's hub is late too.
     assert names.index("e.record") in progress.depends[names.index("o.send.enabled")]

@@ -91,7 +91,7 @@ def test_the_operator_mounts_the_filters_while_the_robot_tightens_the_bolts() ->
     from deploy.local.inprocess import run_in_process
 
     lines: list[str] = []
-    summary = run_in_process(load_model(), seed=1, report=lines.append)
+    summary = run_in_process(load_model(), seed=1, report=lines.append, execution=Execution.PARTIAL_ORDER)
     assert summary.finished
     done = {line.split()[2]: float(line.split()[0].rstrip("s")) for line in lines if " done " in line}
     assert done["MountFilter3"] < done["TightenBolt24"]

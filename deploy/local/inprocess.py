@@ -77,7 +77,7 @@ def run_in_process(
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
-    execution: Execution = Execution.PARTIAL_ORDER,
+    execution: Execution = Execution.TRACE,
     production: ProductionPlan | None = None,
 ) -> RunSummary:
     """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
@@ -90,7 +90,7 @@ def run_in_process(
     compiled = stack.compiled
     clock = VirtualClock()
     core = stack.control_core(clock, budget=budget)
-    core.engine.execution = execution  # the trace only for the cycle benchmark's "before"
+    core.engine.execution = execution  # the partial order is selectable here (deorder.py)
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
                        effect_seconds(model, delays))
     flow = None
