@@ -39,7 +39,8 @@ ROOT = Path(__file__).resolve().parent.parent
 FOLLOWABLE_TIME_LIMIT = 300.0  # station seconds: a followable station takes a few
 STOPS_WITHIN = 60.0  # station seconds in which an unfollowable one must have stopped, the diagnosis said
 LAST_EVENTS_SHOWN = 15
-# A seed is not made simpler by shrinking it: the failing one is the example, as drawn.
+# A seed is not made simpler by shrinking it: the failing one is the example, as drawn. The seeds are drawn
+# the same way in every run (derandomize): the suite checks one fixed sample, which a failure names.
 RUN_ONLY = (Phase.explicit, Phase.reuse, Phase.generate)
 
 
@@ -118,27 +119,31 @@ def check_unfollowable_stops_with_the_diagnosis(seed: int) -> None:
     assert recorded.most_requests_from_one_state() <= GIVE_UP_AFTER, said
 
 
-@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow], phases=RUN_ONLY)
+@settings(max_examples=50, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+          phases=RUN_ONLY)
 @given(seed=SEEDS)
 def test_followable_timed_stations_complete_in_process(seed: int) -> None:
     check_followable_completes(seed)
 
 
 @pytest.mark.slow
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow], phases=RUN_ONLY)
+@settings(max_examples=500, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+          phases=RUN_ONLY)
 @given(seed=SEEDS)
 def test_500_followable_timed_stations_complete_in_process(seed: int) -> None:
     check_followable_completes(seed)
 
 
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow], phases=RUN_ONLY)
+@settings(max_examples=20, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+          phases=RUN_ONLY)
 @given(seed=SEEDS)
 def test_unfollowable_timed_stations_stop_within_a_minute_with_the_diagnosis(seed: int) -> None:
     check_unfollowable_stops_with_the_diagnosis(seed)
 
 
 @pytest.mark.slow
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow], phases=RUN_ONLY)
+@settings(max_examples=200, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+          phases=RUN_ONLY)
 @given(seed=SEEDS)
 def test_200_unfollowable_timed_stations_stop_with_the_diagnosis(seed: int) -> None:
     check_unfollowable_stops_with_the_diagnosis(seed)
