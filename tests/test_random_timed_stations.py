@@ -11,19 +11,15 @@ drawn, and the run's last events.
 
 from __future__ import annotations
 
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from common.model import OperationState
-from common.wire.ctl import Livelock
 from controller.livelock import GIVE_UP_AFTER
-from controller.recording.schema import OperationRecord, PlanRequestRecord, RecordKind
 from controller.synthesis import synthesize
 from deploy.local.inprocess import RunSummary, run_in_process
 from deploy.local.station import Options, run_station
@@ -33,6 +29,7 @@ from tests.stations.random_timed_station import (
     build_random_timed_station,
     build_random_timed_station_with_shape,
 )
+from tests.timing_stations.recorded import Recorded
 
 SEEDS = st.integers(min_value=0, max_value=2**31 - 1)
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,44 +39,6 @@ LAST_EVENTS_SHOWN = 15
 # A seed is not made simpler by shrinking it: the failing one is the example, as drawn. The seeds are drawn
 # the same way in every run (derandomize): the suite checks one fixed sample, which a failure names.
 RUN_ONLY = (Phase.explicit, Phase.reuse, Phase.generate)
-
-
-class Recorded:
-    """A recording sink keeping what the properties look at: plan requests, events and operation changes."""
-
-    def __init__(self) -> None:
-        self.requests: list[tuple[float, PlanRequestRecord]] = []
-        self.events: list[tuple[float, msgspec.Struct]] = []
-        self.operations: list[tuple[float, str, OperationRecord]] = []  # (time, operation, change)
-
-    def put(self, t: float, kind: RecordKind, key: str, data: msgspec.Struct) -> None:
-        if kind is RecordKind.PLAN_REQUEST:
-            assert isinstance(data, PlanRequestRecord)
-            self.requests.append((t, data))
-        elif kind is RecordKind.EVENT:
-            self.events.append((t, data))
-        elif kind is RecordKind.OPERATION:
-            assert isinstance(data, OperationRecord)
-            self.operations.append((t, key, data))
-
-    def ingested(self, t: float, changed: dict[str, Any], hub_states: Any) -> None:
-        pass
-
-    def update_meta(self, **fields: Any) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def most_requests_from_one_state(self) -> int:
-        counts = Counter((tuple(r.goals), r.start) for _, r in self.requests if r.goals)
-        return max(counts.values(), default=0)
-
-    def livelocks(self) -> list[tuple[float, Livelock]]:
-        return [(t, e) for t, e in self.events if isinstance(e, Livelock)]
-
-    def final_states(self) -> dict[str, OperationState]:
-        return {operation: OperationState(change.after) for _, operation, change in self.operations}
 
 
 def run(seed: int, *, followable: bool, time_limit: float) -> tuple[Shape, RunSummary, Recorded]:

@@ -4,55 +4,20 @@ the feeder station of tests/timing_stations/feeder.py."""
 
 from __future__ import annotations
 
-from collections import Counter
 from pathlib import Path
-from typing import Any
 
-import msgspec
 import pytest
 
 from common.model import OperationState
 from common.wire.ctl import Livelock
 from controller.livelock import RETRIES as LIVELOCK_RETRIES
-from controller.recording.schema import OperationRecord, PlanRequestRecord, RecordKind
 from deploy.local.inprocess import run_in_process
 from deploy.local.station import Options, run_station
 from tests.timing_stations.feeder import build_model
+from tests.timing_stations.recorded import Recorded
 
 ONE_HOUR = 3600.0
 ROOT = Path(__file__).resolve().parent.parent
-
-
-class Recorded:
-    """A recording sink that keeps what the tests look at: plan requests and events, with their station time."""
-
-    def __init__(self) -> None:
-        self.requests: list[tuple[float, PlanRequestRecord]] = []
-        self.events: list[tuple[float, msgspec.Struct]] = []
-        self.operations: list[tuple[float, OperationRecord]] = []
-
-    def put(self, t: float, kind: RecordKind, key: str, data: msgspec.Struct) -> None:
-        if kind is RecordKind.PLAN_REQUEST:
-            assert isinstance(data, PlanRequestRecord)
-            self.requests.append((t, data))
-        elif kind is RecordKind.EVENT:
-            self.events.append((t, data))
-        elif kind is RecordKind.OPERATION:
-            assert isinstance(data, OperationRecord)
-            self.operations.append((t, data))
-
-    def ingested(self, t: float, changed: dict[str, Any], hub_states: Any) -> None:
-        pass
-
-    def update_meta(self, **fields: Any) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-    def most_requests_from_one_state(self) -> int:
-        counts = Counter((tuple(r.goals), r.start) for _, r in self.requests if r.goals)
-        return max(counts.values(), default=0)
 
 
 def test_feeder_station_completes_in_process_the_robot_waiting_for_the_sensor() -> None:
@@ -78,10 +43,10 @@ def test_a_race_no_plan_avoids_stops_with_the_diagnosis_within_a_minute_of_stati
     assert any(line.startswith("livelock: f.present_m never became false") for line in summary.log)
     # In error from the diagnosis on, retried with backoff, then left to the operator: nothing more is planned
     # after the first minute, and the run ends there, stuck with the operation in error.
-    to_error = [t for t, change in recorded.operations if change.after == OperationState.ERROR]
-    retried = [t for t, change in recorded.operations if change.before == OperationState.ERROR]
+    to_error = [t for t, _, change in recorded.operations if change.after == OperationState.ERROR]
+    retried = [t for t, _, change in recorded.operations if change.before == OperationState.ERROR]
     assert to_error[0] == said_at and len(retried) == LIVELOCK_RETRIES == len(to_error) - 1
-    assert recorded.operations[-1][1].after == OperationState.ERROR
+    assert recorded.operations[-1][2].after == OperationState.ERROR
     assert recorded.requests[-1][0] < 60.0
     assert summary.reason.startswith("stuck") and summary.emulated_seconds < 60.0
     assert recorded.most_requests_from_one_state() <= 20
