@@ -187,15 +187,14 @@ class ControlCore:
     def tick(self) -> TickResult:
         self._check_safety()
         paused = self.paused or self.safety.stopped
-        followed = None if paused else self.progress
-        done_before = len(followed.done) if followed is not None else 0
-        result = self.engine.tick(self.state, requested=() if paused else self._startable(), progress=followed,
+        result = self.engine.tick(self.state, requested=() if paused else self._startable(),
+                                  progress=None if paused else self.progress,
                                   disabled=self.disabled, blocked=self._blocked, now=self.clock())
         self.state = result.state
         if self.forced:
             self._hold_forces()
         self.events.abilities_started += sum(1 for n in result.fired if n in self._deliberate_names)
-        self._watch_progress(result, followed, done_before)
+        self._watch_progress(result)
         if result.replan is not None and not self._revalidate(result.replan):
             self._want_plan(result.replan)
             self._lost = result.lost
@@ -213,13 +212,12 @@ class ControlCore:
             self._want_plan(ReplanCause(ReplanReason.GOALS_NOT_REACHED))
         return result
 
-    def _watch_progress(self, result: TickResult, followed: PlanProgress | None, done_before: int) -> None:
+    def _watch_progress(self, result: TickResult) -> None:
+        """Only a finished operation is progress (controller/livelock.py)."""
         if result.finished:
             self.livelock.finished()
             self._livelock_attempts.clear()
             self._livelocks_said.clear()
-        elif followed is not None and len(followed.done) > done_before:
-            self.livelock.stepped(self.state)
 
     def _check_safety(self) -> None:
         events = self.safety.check(self.state, self.unknown)

@@ -46,9 +46,6 @@ class LivelockWatch:
         """An operation finished: progress, and every state may be new again."""
         self._asked.clear()
 
-    def stepped(self, state: State) -> None:
-        """A plan step was done and the station is in `state`: not progress by itself (the module's docstring)."""
-
     def asked(self, goals: frozenset[str], state: State) -> tuple[Repeat, int]:
         """Count a request for `goals` from `state`; what the count means, and the count."""
         key = (goals, state)
