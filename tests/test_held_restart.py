@@ -71,16 +71,15 @@ def test_a_resource_without_mirror_at_restart_is_sent_nothing_until_its_mirror_a
 
 
 def what_the_hub_had_applied(station: Station, first: str, frozen_at: float, thawed_at: float) -> set[str]:
-    """The robot's ref_pos_c the frozen hub had applied from the first controller: its first state after the
-    thaw says it, if the watcher got that state. The thawed hub's session links again, and its first states
-    can reach the controller before its link to the watcher is back (seen: the watcher's first state after
-    the thaw already mirrored the restarted controller's command). Then it is one of the first controller's
-    commands from the newest the hub was seen mirroring to the newest sent before the freeze."""
+    """The robot's ref_pos_c values the frozen hub may have applied from the first controller: those it was seen
+    mirroring after the thaw, and the first controller's commands from the newest the hub was seen mirroring
+    before the freeze to the newest sent before it. Both, because a command sent just before the freeze waits
+    in the hub's socket and is applied after the thaw (its mirror then says so), and because the thawed hub's
+    first states can reach the controller before its link to the watcher is back."""
     states = station.watch.states("ur")
-    thawed = [s.message.mirror for s in states if s.at >= thawed_at and s.message.mirror is not None]
-    if thawed and thawed[0].controller == first:
-        return {thawed[0].ref_pos_c}
+    thawed = {s.message.mirror.ref_pos_c for s in states
+              if s.at >= thawed_at and s.message.mirror is not None and s.message.mirror.controller == first}
     mirrored = [s.message.mirror.seq for s in states if s.at < frozen_at and s.message.mirror is not None
                 and s.message.mirror.controller == first]
-    return {c.message.ref_pos_c for c in controller_commands(station, "ur", first)
-            if c.at < frozen_at and c.message.seq >= max(mirrored, default=0)}
+    return thawed | {c.message.ref_pos_c for c in controller_commands(station, "ur", first)
+                     if c.at < frozen_at and c.message.seq >= max(mirrored, default=0)}

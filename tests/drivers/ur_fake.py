@@ -78,5 +78,8 @@ def ur_params(host: str, backend: str = "sim", **extra: Any) -> dict[str, Any]:
         "reissue_after": 0.3,
         "reconnect_min": 0.05,
         "reconnect_max": 0.5,
+        # The fake runs in another process: on a loaded 2-core machine it can miss a few of its 2 ms
+        # cycles. Tests of a silent robot freeze it outright; the others must not read a stall as a loss.
+        "stale_after": 1.0,
         **extra,
     }
