@@ -15,8 +15,8 @@ is not trusted to check itself):
   liveliness tokens, subscribe to and query anything of the station.
 * an operator ([security] operators: consoles, hubctl, an MES): query `ctl/request`, `ctl/orders`
   (add, list and cancel orders) and the hubs' `selftest`, subscribe to `ctl/**`, `state` and `selftest`, watch `alive`.
-* the viewer ([overview] name: the supervisors' overview page) only reads: subscribe to `ctl/**`, `state`
-  and `selftest`, query `ctl/status` and `ctl/plan/*` (the controller's picture and plans), watch `alive`.
+* the viewer ([overview] name: the supervisors' overview page) only reads: subscribe to `ctl/**` and `state`,
+  query `ctl/status` and `ctl/plan/*` (the controller's picture and plans), watch `alive`.
   It may put nothing and query neither `ctl/request` nor `ctl/orders`.
 
 What a process sends TO an authenticated station member is not restricted beyond the
@@ -81,8 +81,8 @@ def operator_grants(keys: Keys) -> list[Grant]:
 
 def viewer_grants(keys: Keys) -> list[Grant]:
     return [
-        Grant(("query",), (keys.ctl("status"), keys.all_plans, keys.all_selftest)),
-        Grant(("declare_subscriber",), (keys.ctl("**"), keys.all_state, keys.all_selftest)),
+        Grant(("query",), (keys.ctl("status"), keys.all_plans)),
+        Grant(("declare_subscriber",), (keys.ctl("**"), keys.all_state)),
         Grant(("declare_liveliness_subscriber", "liveliness_query"), (keys.all_alive, keys.ctl("**"))),
     ]
 
