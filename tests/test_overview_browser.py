@@ -84,9 +84,8 @@ def overview(config: Path, controller_port: int, directory: Path) -> Iterator[Ov
     def answers() -> bool:
         if process.poll() is not None:
             raise AssertionError(f"the overview exited with {process.returncode}:\n{served.tail()}")
-        with contextlib.suppress(OSError):
-            with urllib.request.urlopen(served.url + "picture.json", timeout=2) as response:
-                return bool(response.status == 200)
+        with contextlib.suppress(OSError), urllib.request.urlopen(served.url + "picture.json", timeout=2) as response:
+            return bool(response.status == 200)
         return False
 
     try:
