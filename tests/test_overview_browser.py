@@ -46,7 +46,7 @@ CONTROLS = "form, button, input, select, textarea, a[href], [onclick], [contente
 T = TypeVar("T")
 
 
-def wait(predicate: Callable[[], T], timeout: float, what: str, describe: Callable[[], str] = lambda: "") -> T:
+def wait(predicate: Callable[[], T | None], timeout: float, what: str, describe: Callable[[], str] = lambda: "") -> T:
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
