@@ -73,7 +73,7 @@ function drawPicture(p) {
     return tr;
   });
 
-  fill("#events", p.events, (e) => {
+  fill("#events", p.events.slice().reverse(), (e) => {  // newest first: what just happened is on top
     const li = document.createElement("li");
     li.textContent = e.text;
     li.title = e.text;
