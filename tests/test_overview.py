@@ -64,10 +64,10 @@ def test_picture_marks_only_what_is_abnormal(info: StationInfo) -> None:
                 ResourceHealthInfo("ur", "ur10", False, reason="hub ur10 gone"),
                 ResourceHealthInfo("nr2", "pi-tool", True, mirror_lag=2)]),
         None, info, OperationClock(), [HubGone("ur10")], silent_s=0.1)
-    assert [(op.name, op.severity) for op in shown.operations] == [
-        ("TightenBolt1", Severity.NORMAL), ("TightenBolt2", Severity.NORMAL), ("TightenBolt3", Severity.ALARM)]
+    assert [(op.name, op.severity) for op in shown.operations] == [  # what is wrong first, then what runs
+        ("TightenBolt3", Severity.ALARM), ("TightenBolt2", Severity.NORMAL), ("TightenBolt1", Severity.NORMAL)]
     assert shown.operations[1].in_state == "0:07"  # uptime 12 - since 5
-    assert shown.operations[0].goal == "engine.bolt1_e == tightened"
+    assert shown.operations[2].goal == "engine.bolt1_e == tightened"
     assert [(r.resource, r.health, r.severity) for r in shown.resources] == [
         ("nr", "ok", Severity.NORMAL), ("ur", "hub ur10 gone", Severity.ALARM), ("nr2", "ok", Severity.WARNING)]
     assert shown.resources[0].mode == "emulate" and shown.resources[2].mirror == "2 behind"
@@ -89,8 +89,8 @@ def test_plan_steps_say_what_they_wait_for_once_the_details_are_of_this_plan(inf
         PlanStepInfo("nr", "nr.start", "deliberate", "ur.pos_m == at_bolt1", False)])
     shown = picture("fault_station", status(plan=plan), details, info, OperationClock(), [], 0.0)
     assert shown.plan.summary.startswith("1/2 steps")
-    assert [(s.number, s.done, s.waits_for) for s in shown.plan.steps] == [
-        (1, True, ""), (2, False, "ur.pos_m == at_bolt1")]
+    assert [(s.number, s.done, s.waits_for) for s in shown.plan.steps] == [  # what is still to come first
+        (2, False, "ur.pos_m == at_bolt1"), (1, True, "")]
     older = msgspec.structs.replace(details, id=3)
     assert picture("fault_station", status(plan=plan), older, info, OperationClock(), [], 0.0).plan.steps == []
 

@@ -87,6 +87,11 @@ class Picture(msgspec.Struct, frozen=True):
 
 # --- the status ----------------------------------------------------------------------------------
 
+# What a supervisor looks for first: what is wrong, then what is under way; the rest in the model's order.
+OPERATION_ORDER = {OperationState.ERROR: 0, OperationState.EXECUTING: 1, OperationState.INITIAL: 2,
+                   OperationState.FINISHED: 3}
+
+
 def operation_rows(status: StatusMessage, info: StationInfo, clock: OperationClock) -> list[OperationRow]:
     rows = []
     for op in status.operations:
@@ -94,18 +99,19 @@ def operation_rows(status: StatusMessage, info: StationInfo, clock: OperationClo
         severity = Severity.ALARM if op.state == OperationState.ERROR else Severity.NORMAL
         rows.append(OperationRow(op.name, op.state, info.goals.get(op.name, ""), duration(status.uptime - since),
                                  op.error, severity))
-    return rows
+    return sorted(rows, key=lambda row: OPERATION_ORDER.get(row.state, len(OPERATION_ORDER)))
 
 
 def plan_view(plan: PlanInfo | None, details: PlanDetails | None) -> PlanView:
     """The plan under way: its steps once its details (the plan queryable's answer) are of this plan, each
-    step done or what it waits for."""
+    step done or what it waits for. The steps still to come first (what the station waits for), in plan
+    order, then those done."""
     steps = []
     if plan is not None and details is not None and details.id == plan.id:
         for j, step in enumerate(details.steps):
             done = plan.is_done(j)
             steps.append(PlanStepRow(j + 1, step.transition, step.kind, done, "" if done else step.guard))
-    return PlanView(plan_summary(plan), steps)
+    return PlanView(plan_summary(plan), sorted(steps, key=lambda step: step.done))
 
 
 def resource_row(health: ResourceHealthInfo, info: StationInfo) -> ResourceRow:

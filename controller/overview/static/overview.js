@@ -67,7 +67,7 @@ function drawPicture(p) {
     tr.className = s.done ? "done" : "pending";
     cell(tr, String(s.number));
     cell(tr, s.done ? "\u2714" : "\u00b7");
-    cell(tr, s.transition);
+    cell(tr, s.transition, s.transition).className = "step";
     cell(tr, s.kind);
     cell(tr, s.waits_for, s.waits_for).className = "waits";
     return tr;
