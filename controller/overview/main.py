@@ -20,6 +20,8 @@ from common.plumbing.lifecycle import EXPECTED_ERRORS, run_main, setup_logging, 
 
 log = logging.getLogger("statehub.overview")
 
+STREAMS_CLOSE_S = 1.0
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
@@ -68,7 +70,8 @@ async def run_overview(config_path: str, *, bind: str | None = None, connect: Se
     feed = OverviewFeed(info, RunGantt(directory, info.station, model))
     stop = stop_on_signals()
     async with ZenohBus(zconfig) as bus:
-        runner = web.AppRunner(make_app(feed), handle_signals=False)
+        # Open event streams (every browser showing the page) end at once on exit: nothing of theirs is owed.
+        runner = web.AppRunner(make_app(feed), handle_signals=False, shutdown_timeout=STREAMS_CLOSE_S)
         await runner.setup()
         try:
             try:
