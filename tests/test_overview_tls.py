@@ -78,8 +78,9 @@ def secured(tmp_path: Path) -> Iterator[Secured]:
         print((tmp_path / "controller.log").read_text(errors="replace")[-3000:])
 
 
-async def test_the_viewer_reads_the_status_and_the_plans(secured: Secured) -> None:
-    async with ZenohBus(secured.zconfig("overview")) as bus:
+@pytest.mark.parametrize("who", ["overview", "op"])  # the supervisors' page and the operator's console
+async def test_the_viewer_and_the_console_read_the_status_and_the_plans(secured: Secured, who: str) -> None:
+    async with ZenohBus(secured.zconfig(who)) as bus:
         reader = StationReader(bus, secured.config.keys)
         deadline = time.monotonic() + 60
         while True:
@@ -108,7 +109,7 @@ def test_the_viewer_can_neither_request_nor_command(secured: Secured) -> None:
             deadline = time.monotonic() + 30
             while not statuses and time.monotonic() < deadline:
                 time.sleep(0.1)
-            replies = sum(len(list(session.get(keys.ctl("request"), payload=request, timeout=2.0)))
+            replies = sum(len(list(session.get(keys.ctl("request"), payload=request, timeout=5.0)))
                           for _ in range(3))
             return len(statuses), replies
         finally:

@@ -73,7 +73,9 @@ def controller_grants(keys: Keys) -> list[Grant]:
 def operator_grants(keys: Keys) -> list[Grant]:
     ctl = keys.ctl("**")
     return [
-        Grant(("query",), (keys.ctl("request"), keys.ctl(ORDERS_KEY), keys.all_selftest)),
+        # The console asks for the full status on connect and for the plans it shows, as the viewer does.
+        Grant(("query",), (keys.ctl("request"), keys.ctl(ORDERS_KEY), keys.all_selftest, keys.ctl("status"),
+                           keys.all_plans)),
         Grant(("declare_subscriber",), (ctl, keys.all_state, keys.all_selftest)),
         Grant(("declare_liveliness_subscriber", "liveliness_query"), (keys.all_alive, ctl)),
     ]
