@@ -34,7 +34,7 @@ from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, Statio
 from common.config.modes import DeviceMode, words
 from common.model import Model
 
-from .drivers.base import Driver
+from .drivers.base import Driver, InStation, StationContext
 from .drivers.emulated import EmulatedDriver
 from .drivers.params import ParamError, convert_params
 from .drivers.registry import ENTRY_POINT_GROUP, builtin_driver_types, find_driver
@@ -231,5 +231,8 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
                 delay=parse_delay(params["delay"]) if "delay" in params else device.delay,
             )
         else:
-            drivers[resource] = make_driver(resource, device.type, chosen, params)
+            driver = make_driver(resource, device.type, chosen, params)
+            if isinstance(driver, InStation):
+                driver.join_station(StationContext(model, config, hub))
+            drivers[resource] = driver
     return drivers
