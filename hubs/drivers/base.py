@@ -12,6 +12,8 @@ Optional capabilities are declared by inheriting them, never probed for:
   tool changer sees where the robot is); the runtime subscribes to them and hands
   their values to `Observes.observe`.
 * `Observes`: the driver takes values of other resources' variables.
+* `CallsSupervisor`: a person at the device can call the supervisor (the operator's page); the hub
+  holds a liveliness token while the call stands, and the controller logs it.
 * `InStation`: the driver needs the station around its device (the model, hubs.toml, its hub): the
   factory hands it over once built (the operator's page reads the model's confirm conditions).
 """
@@ -139,3 +141,11 @@ class InStation(abc.ABC):
     def join_station(self, station: StationContext) -> None:
         """The station's model, hubs.toml and this hub's name. Raises ValueError when the driver cannot
         serve its resource in this station (named in the message)."""
+
+
+class CallsSupervisor(abc.ABC):
+    """Declared capability: a person at the device can call the supervisor."""
+
+    @abc.abstractmethod
+    async def next_call(self) -> bool:
+        """Wait until the call for the supervisor begins (True) or ends (False)."""

@@ -23,7 +23,15 @@ from common.model import Value
 from common.resources.operator import NO_TASK
 from common.stations.instructions import InstructionTable, load_instructions
 from hubs.drivers import badge_readers
-from hubs.drivers.base import Driver, Inputs, InStation, Observes, SelftestReport, StationContext
+from hubs.drivers.base import (
+    CallsSupervisor,
+    Driver,
+    Inputs,
+    InStation,
+    Observes,
+    SelftestReport,
+    StationContext,
+)
 from hubs.drivers.nutrunner_mcp23017 import BusFactory, default_bus_factory, parse_pin
 
 from .button import OperatorButton
@@ -38,7 +46,7 @@ log = logging.getLogger(__name__)
 OPERATOR_TYPE = "operator"
 
 
-class OperatorPage(Driver, Inputs, Observes, InStation):
+class OperatorPage(Driver, Inputs, Observes, InStation, CallsSupervisor):
     def __init__(self, resource: str, params: OperatorPageParams, *, button_bus: BusFactory | None = None) -> None:
         self.resource = resource
         self.params = params
@@ -53,7 +61,7 @@ class OperatorPage(Driver, Inputs, Observes, InStation):
                                          parse_pin(wired.pin), active_low=wired.active_low, poll_s=wired.poll_s,
                                          on_press=lambda: self._pressed_by("pushbutton"))
         self.supervisor_called = False
-        self.calls: asyncio.Queue[str] = asyncio.Queue()  # devices that called the supervisor, for the hub
+        self._calls: asyncio.Queue[bool] = asyncio.Queue()  # the call began (True) or ended, for the hub
         self._changed = asyncio.Event()
         self._tls: ssl.SSLContext | None = None
         self._watched: dict[str, Value] = {}  # the badge reader's and the robot's variables
@@ -131,7 +139,9 @@ class OperatorPage(Driver, Inputs, Observes, InStation):
     async def write(self, commands: Mapping[str, Value]) -> None:
         button = self._model_button()
         if "instr_c" in commands and commands["instr_c"] != button.instruction:
-            self.supervisor_called = False  # the station moved on: the call was answered
+            if self.supervisor_called:  # the station moved on: the call was answered
+                self.supervisor_called = False
+                self._calls.put_nowait(False)
             button.command(commands["instr_c"])
 
     async def enter_safe_state(self) -> Mapping[str, Value]:
@@ -201,9 +211,13 @@ class OperatorPage(Driver, Inputs, Observes, InStation):
 
     def call_supervisor(self, device: str) -> None:
         log.warning("%s: the operator calls the supervisor (from %s)", self.resource, device)
-        self.supervisor_called = True
-        self.calls.put_nowait(device)
+        if not self.supervisor_called:
+            self.supervisor_called = True
+            self._calls.put_nowait(True)
         self._notify()
+
+    async def next_call(self) -> bool:
+        return await self._calls.get()
 
 
 def _tls_context(station: StationContext) -> ssl.SSLContext:
