@@ -208,9 +208,10 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
 
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
                   mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
-                  overrides: Overrides | None = None) -> dict[str, Driver]:
+                  overrides: Overrides | None = None, certs: str | None = None) -> dict[str, Driver]:
     """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`); `failure` overrides the
-    failure probability of emulated resources; `overrides` are merged into the devices' parameters.
+    failure probability of emulated resources; `overrides` are merged into the devices' parameters;
+    `certs`: the certificate directory given on the command line (a driver serving TLS reads it).
     Raises ConfigError (file, line, key) for a device without driver or with a bad parameter."""
     if hub not in config.hubs:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
@@ -233,6 +234,6 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
         else:
             driver = make_driver(resource, device.type, chosen, params)
             if isinstance(driver, InStation):
-                driver.join_station(StationContext(model, config, hub))
+                driver.join_station(StationContext(model, config, hub, certs))
             drivers[resource] = driver
     return drivers

@@ -69,10 +69,10 @@ class RunningPage:
 
 
 @contextmanager
-def running_page(params: Mapping[str, Any] | None = None, *,
-                 expander: ButtonOnExpander | None = None) -> Iterator[RunningPage]:
+def running_page(params: Mapping[str, Any] | None = None, *, expander: ButtonOnExpander | None = None,
+                 config_path: Path = ROOT / "hubs.toml") -> Iterator[RunningPage]:
     """The reference station's operator `human` served on a free port of loopback."""
-    config, model = load_station(ROOT / "hubs.toml")
+    config, model = load_station(config_path)
     raw = {"host": "127.0.0.1", "port": 0, "instructions": INSTRUCTIONS, "badge_reader": "rfid", "robot": "ur",
            **(params or {})}
     loop = asyncio.new_event_loop()

@@ -132,6 +132,7 @@ class StationContext:
     model: Model
     config: StationConfig
     hub: str
+    certs: str | None = None  # the certificate directory given on the command line (`--certs`)
 
 
 class InStation(abc.ABC):

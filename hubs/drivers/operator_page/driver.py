@@ -223,7 +223,7 @@ class OperatorPage(Driver, Inputs, Observes, InStation, CallsSupervisor):
 def _tls_context(station: StationContext) -> ssl.SSLContext:
     """The hub's own certificate, issued by the station's CA: a tablet that trusts the CA trusts the page."""
     try:
-        files = tls_files(cert_dir(station.config), identity_of(station.config, station.hub))
+        files = tls_files(cert_dir(station.config, station.certs), identity_of(station.config, station.hub))
     except SecurityError as exc:
         raise ValueError(f"the operator page is served over TLS in mode 'tls': {exc}") from exc
     context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)

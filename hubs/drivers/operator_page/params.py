@@ -25,12 +25,6 @@ class ButtonParams(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     active_low: bool = True  # wired to ground, the expander's pull-up on
     poll_s: Positive = 0.02
 
-    def __post_init__(self) -> None:
-        try:
-            parse_pin(self.pin)
-        except ValueError as exc:
-            raise invalid("button.pin", str(exc)) from None
-
 
 class OperatorPageParams(DriverParams, frozen=True, kw_only=True):
     host: str = "127.0.0.1"  # the address the page binds to ("0.0.0.0": every interface of the hub)
@@ -52,3 +46,8 @@ class OperatorPageParams(DriverParams, frozen=True, kw_only=True):
             if len(token) < TOKEN_MIN_CHARS:
                 raise invalid(f"tokens.{device}", f"a token of at least {TOKEN_MIN_CHARS} characters (e.g. "
                                                   "`python -c 'import secrets; print(secrets.token_urlsafe())'`)")
+        if self.button is not None:  # checked here, where the error can name the whole key
+            try:
+                parse_pin(self.button.pin)
+            except ValueError as exc:
+                raise invalid("button.pin", str(exc)) from None
