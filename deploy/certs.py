@@ -150,7 +150,7 @@ def _endpoint_host(endpoint: str) -> str:
 def hosts_of(config: StationConfig, identity: Identity) -> list[str]:
     """Where `identity` is reached: its host in hubs.toml and its listeners; for the controller also
     the addresses the others connect to (they connect to it)."""
-    if identity.role == "operator":
+    if identity.role in ("operator", "viewer"):
         return []
     process = "controller" if identity.role == "controller" else identity.name
     section = config.controller if identity.role == "controller" else config.hubs[identity.name]

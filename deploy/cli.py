@@ -312,6 +312,13 @@ def build_parser() -> argparse.ArgumentParser:
     console.add_argument("--certs", metavar="DIR", help="the certificate directory (default: [security] certs)")
     console.set_defaults(func=cmd_console)
 
+    from controller.overview import main as overview_process
+
+    overview = sub.add_parser("overview", help="the supervisors' read-only station overview: a web page (operations, "
+                                                "plan, health, orders, the run's Gantt chart)")
+    overview_process.add_arguments(overview)
+    overview.set_defaults(func=overview_process.serve)
+
     def with_station(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
         with_model(p).add_argument(
             "--config", help="take the model and the devices' `delay` (durations) from this hubs.toml instead")

@@ -314,7 +314,8 @@ def test_access_control_gives_each_holder_only_its_own_keys(tmp_path: Path) -> N
     queries = {s: [k for r in rs if "query" in r["messages"] for k in r["key_exprs"]] for s, rs in sends.items()}
     assert "engine_assembly/ctl/request" in queries["operator-op"] and queries["hub-pi-tool"] == []
     subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
-    assert subjects["controller-decs"] == ["decs"] and len(subjects) == len(config.hubs) + 2
+    # the hubs, the controller, the operator and the overview page (the viewer role: it may only read)
+    assert subjects["controller-decs"] == ["decs"] and len(subjects) == len(config.hubs) + 3
     assert acl["enabled"] and acl["default_permission"] == "deny"
 
 

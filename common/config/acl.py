@@ -15,6 +15,9 @@ is not trusted to check itself):
   liveliness tokens, subscribe to and query anything of the station.
 * an operator ([security] operators: consoles, hubctl, an MES): query `ctl/request`, `ctl/orders`
   (add, list and cancel orders) and the hubs' `selftest`, subscribe to `ctl/**`, `state` and `selftest`, watch `alive`.
+* the viewer ([overview] name: the supervisors' overview page) only reads: subscribe to `ctl/**` and `state`,
+  query `ctl/status` and `ctl/plan/*` (the controller's picture and plans), watch `alive`.
+  It may put nothing and query neither `ctl/request` nor `ctl/orders`.
 
 What a process sends TO an authenticated station member is not restricted beyond the
 station's keys: data only flows to a peer whose subscriptions and queryables passed
@@ -76,6 +79,14 @@ def operator_grants(keys: Keys) -> list[Grant]:
     ]
 
 
+def viewer_grants(keys: Keys) -> list[Grant]:
+    return [
+        Grant(("query",), (keys.ctl("status"), keys.all_plans)),
+        Grant(("declare_subscriber",), (keys.ctl("**"), keys.all_state)),
+        Grant(("declare_liveliness_subscriber", "liveliness_query"), (keys.all_alive, keys.ctl("**"))),
+    ]
+
+
 def followed_resources(model: Model, resources: Iterable[str]) -> set[str]:
     """The other resources whose variables the model's effects on `resources` read or write:
     what an emulated device of these resources follows (hubs/runtime.py `_external_inputs`)."""
@@ -106,7 +117,8 @@ def access_control(config: StationConfig, model: Model) -> dict[str, Any]:
             devices = config.hubs[name].devices
             grants = hub_grants(keys, name, devices, followed_resources(model, devices))
         else:
-            grants = controller_grants(keys) if role == "controller" else operator_grants(keys)
+            grants = {"controller": controller_grants, "operator": operator_grants,
+                      "viewer": viewer_grants}[role](keys)
         own_rules = _rules(f"from-{subject}", grants, "ingress")
         rules += own_rules
         subjects.append({"id": subject, "cert_common_names": [name]})

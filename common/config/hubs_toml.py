@@ -33,6 +33,10 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     operators = ["operator"]     # names whose certificates have the operator role (consoles, hubctl)
     verify_names = true          # a listener's certificate must name the host connected to
 
+    [overview]                   # optional: the supervisors' read-only page (common/config/overview.py)
+    bind = "127.0.0.1:8470"      # HOST:PORT it is served on (`hubctl overview`)
+    name = "overview"            # its certificate's common name in tls mode (role viewer: it may only read)
+
     [production]                 # optional: the orders a run queues at its start (common/config/production.py)
     mix = { full = 3, light = 1 }  # a repeating mix of the model's variants, `count` orders,
     count = 8                      # or [[production.orders]] tables: variant, product_id, parameters, count
@@ -81,6 +85,7 @@ from common.config.errors import ConfigError, ConfigProblem, toml_problem, toml_
 from common.config.hostnames import host_problem, user_problem
 from common.config.keylines import KeyLines
 from common.config.modes import DeviceMode, NetworkMode, SecurityMode, words
+from common.config.overview import OverviewConfig, parse_bind
 from common.config.production import (
     OrderEntry,
     ProductionConfig,
@@ -185,6 +190,7 @@ class StationConfig(msgspec.Struct, frozen=True):
     hubs: dict[str, HubConfig]
     security: SecurityConfig = SecurityConfig()
     production: ProductionConfig = ProductionConfig()
+    overview: OverviewConfig = OverviewConfig()
 
     @property
     def keys(self) -> Keys:
@@ -340,9 +346,9 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
         raise ConfigError([toml_problem(file, str(exc))]) from None
 
     for key in data:
-        if key not in ("station", "network", "controller", "hubs", "security", "production"):
+        if key not in ("station", "network", "controller", "hubs", "security", "production", "overview"):
             checker.problem((key,), "unknown section (known: station, network, controller, hubs, security, "
-                                    "production)")
+                                    "production, overview)")
 
     station = network = controller = None
     table = checker.table(data.get("station"), ("station",)) if "station" in data else None
@@ -388,12 +394,13 @@ def parse_config(text: str, file: str = "hubs.toml", *, model: Model | None = No
 
     security = _load_security(checker, data.get("security", {}), controller, hubs)
     production = _load_production(checker, data.get("production", {}), text)
+    overview = _load_overview(checker, data.get("overview", {}), controller, hubs, security)
     if checker.problems:
         raise ConfigError(checker.problems)
     assert station is not None and network is not None and controller is not None and security is not None
-    assert production is not None
+    assert production is not None and overview is not None
     config = StationConfig(path=file, station=station, network=network, controller=controller, hubs=hubs,
-                           security=security, production=production)
+                           security=security, production=production, overview=overview)
     if model is not None:
         check_against_model(config, model, text=text)
     return config
@@ -462,6 +469,27 @@ def _load_security(checker: _Checker, value: object, controller: ControllerConfi
         checker.problem(("controller", "name"), f"{controller.name!r} is also a hub's name: certificates name "
                                                 f"their holder, so the controller needs a name of its own")
     return security
+
+
+def _load_overview(checker: _Checker, value: object, controller: ControllerConfig | None,
+                   hubs: Mapping[str, HubConfig], security: SecurityConfig | None) -> OverviewConfig | None:
+    """[overview]: its bind address, and a certificate name no other holder has (it gets the viewer role)."""
+    table = checker.table(value, ("overview",))
+    overview = checker.section(OverviewConfig, table, ("overview",)) if table is not None else None
+    if overview is None:
+        return None
+    try:
+        parse_bind(overview.bind)
+    except ValueError as exc:
+        checker.problem(("overview", "bind"), str(exc))
+    taken = {hub: "a hub" for hub in hubs} | ({controller.name: "the controller"} if controller else {})
+    taken |= {name: "an operator" for name in (security.operators if security else ())}
+    if not _NAME.match(overview.name) or overview.name in taken:
+        why = (f"is already the name of {taken[overview.name]}" if overview.name in taken
+               else "must be letters, digits, _ . -")
+        checker.problem(("overview", "name"), f"{overview.name!r} {why} (a certificate's common name must name one "
+                                              f"holder)")
+    return overview
 
 
 def _load_production(checker: _Checker, value: object, text: str) -> ProductionConfig | None:

@@ -22,8 +22,8 @@ from typing import Literal
 
 from common.config.hubs_toml import StationConfig
 
-Role = Literal["hub", "controller", "operator"]
-ROLES: tuple[Role, ...] = ("hub", "controller", "operator")
+Role = Literal["hub", "controller", "operator", "viewer"]
+ROLES: tuple[Role, ...] = ("hub", "controller", "operator", "viewer")  # viewer: the overview page, reads only
 INSECURE_BANNER = ("INSECURE: [security] mode = \"insecure\": plain TCP links, no authentication, no access "
                    "control; anyone reaching a listener may command the station. For one machine only.")
 
@@ -52,6 +52,7 @@ def roles_of(config: StationConfig) -> dict[str, Role]:
     roles: dict[str, Role] = {hub: "hub" for hub in config.hubs}
     roles[config.controller.name] = "controller"
     roles.update({name: "operator" for name in config.security.operators})
+    roles[config.overview.name] = "viewer"
     return roles
 
 
@@ -78,6 +79,11 @@ def operator_identity(config: StationConfig, name: str | None = None) -> Identit
         raise SecurityError(f"{config.path}: {name!r} is a {identity.role}, not an operator "
                             f"(security.operators: {', '.join(operators)})")
     return identity
+
+
+def viewer_identity(config: StationConfig) -> Identity:
+    """The overview page's identity ([overview] name): the viewer role, which may only read the station."""
+    return Identity(config.overview.name, "viewer")
 
 
 def cert_dir(config: StationConfig, override: str | Path | None = None) -> Path:

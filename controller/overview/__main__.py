@@ -1,0 +1,5 @@
+import sys
+
+from controller.overview.main import main
+
+sys.exit(main())
