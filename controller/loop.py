@@ -34,6 +34,8 @@ from common.wire.ctl import (
     OrderFinished,
     OrderStarted,
     PlannedAlone,
+    SupervisorCalled,
+    SupervisorCallEnded,
 )
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
@@ -110,6 +112,10 @@ class ControlLoop:
     def liveliness(self, hub: str, alive: bool) -> None:
         self.recorder.liveliness(hub, alive)
         self.core.events.log.emit(HubAlive(hub) if alive else HubGone(hub))
+
+    def supervisor_call(self, hub: str, resource: str, calling: bool) -> None:
+        """An operator's call for the supervisor began or ended (its hub's token): logged, decides nothing."""
+        self.core.events.log.emit(SupervisorCalled(hub, resource) if calling else SupervisorCallEnded(hub, resource))
 
     def requests(self, *, persist: Callable[[list[str]], None] = lambda _: None,
                  wake: Callable[[], None] = lambda: None) -> Requests:

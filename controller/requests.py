@@ -45,8 +45,9 @@ import logging
 from collections.abc import Callable
 
 from common.bus.protocol import Bus, Request
-from common.model import Kind, OperationState, Predicate, Value
-from common.model.predicates import And, format_value
+from common.model import Kind, OperationState, Value
+from common.model.predicates import format_value
+from common.resources.operator_confirm import condition_refusal, confirmation_effect, instruction_refusal, unmet
 from common.wire.ctl import ACTIONS, ConsoleReply, ConsoleRequest, ReplanCause, ReplanReason, RequestAnswered
 from common.wire.messages import MessageError, decode, encode
 
@@ -63,12 +64,6 @@ def refused(reason: str) -> ConsoleReply:
 
 def accepted(note: str = "") -> ConsoleReply:
     return ConsoleReply(accepted=True, reason=note)
-
-
-def unmet(predicate: Predicate, values: dict[str, Value]) -> str:
-    """The conjuncts of `predicate` that do not hold, in the model's notation."""
-    items = predicate.items if isinstance(predicate, And) else (predicate,)
-    return " && ".join(str(p) for p in items if not p.eval(values))
 
 
 def coerce(value: Value) -> Value:
@@ -217,16 +212,15 @@ class Requests:
         name = chosen[0].name
         instr_path, done_path = f"{name}.instr_c", f"{name}.done_m"
         task = values[instr_path]
-        if task == "none":
-            return refused(f"{name} has no instruction to confirm")
-        if values[done_path]:
-            return refused(f"{name} has already confirmed {task}")
+        refusal = instruction_refusal(name, task, values[done_path])
+        if refusal is not None:
+            return refused(refusal)
         if name in core.disabled:
             return refused(f"{name} is unhealthy: its confirmation could not be followed now")
-        confirmation = self.compiled.by_name[f"{name}.{task}.executing.effect"]
+        confirmation = self.compiled.by_name[confirmation_effect(name, str(task))]
         if not confirmation.guard(core.state):
-            condition = unmet(self.compiled.guard_of(confirmation.source), values)
-            return refused(f"{name} cannot confirm {task} yet: {condition}")
+            refusal = condition_refusal(name, str(task), self.compiled.guard_of(confirmation.source), values)
+            return refused(refusal or f"{name} cannot confirm {task} yet")
         instr = self.compiled.index[instr_path]
         core.force(done_path, True, until=lambda state: state[instr] != task)
         return accepted(f"{name} confirmed {task}")

@@ -164,6 +164,7 @@ class ControllerService:
         tasks = [
             asyncio.create_task(self.ingest.run(self.bus, self._dirty.set), name="states"),
             asyncio.create_task(self._watch_hubs(), name="liveliness"),
+            asyncio.create_task(self._watch_calls(), name="supervisor calls"),
             asyncio.create_task(self.station_hold.watch(stop), name="holder"),
             asyncio.create_task(self._planner_ready(stop), name="planner ready"),
         ]
@@ -202,6 +203,17 @@ class ControllerService:
             if hub is not None:
                 self.watchdog.hub_alive(hub, event.alive)
                 self.loop.liveliness(hub, event.alive)
+                self._dirty.set()
+
+    async def _watch_calls(self) -> None:
+        """Operators' calls for the supervisor (the operator's page): into the event log."""
+        async for event in self.bus.watch_liveliness(self.keys.all_calls):
+            call = self.keys.call_of(event.key)
+            if call is not None:
+                hub, resource = call
+                if event.alive:
+                    log.warning("%s calls the supervisor (hub %s)", resource, hub)
+                self.loop.supervisor_call(hub, resource, event.alive)
                 self._dirty.set()
 
     async def _tick_loop(self, stop: asyncio.Event) -> None:

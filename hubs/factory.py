@@ -34,7 +34,7 @@ from common.config.hubs_toml import ConfigError, ConfigProblem, KeyLines, Statio
 from common.config.modes import DeviceMode, words
 from common.model import Model
 
-from .drivers.base import Driver
+from .drivers.base import Driver, InStation, StationContext
 from .drivers.emulated import EmulatedDriver
 from .drivers.params import ParamError, convert_params
 from .drivers.registry import ENTRY_POINT_GROUP, builtin_driver_types, find_driver
@@ -208,9 +208,10 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
 
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
                   mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
-                  overrides: Overrides | None = None) -> dict[str, Driver]:
+                  overrides: Overrides | None = None, certs: str | None = None) -> dict[str, Driver]:
     """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`); `failure` overrides the
-    failure probability of emulated resources; `overrides` are merged into the devices' parameters.
+    failure probability of emulated resources; `overrides` are merged into the devices' parameters;
+    `certs`: the certificate directory given on the command line (a driver serving TLS reads it).
     Raises ConfigError (file, line, key) for a device without driver or with a bad parameter."""
     if hub not in config.hubs:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
@@ -231,5 +232,8 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
                 delay=parse_delay(params["delay"]) if "delay" in params else device.delay,
             )
         else:
-            drivers[resource] = make_driver(resource, device.type, chosen, params)
+            driver = make_driver(resource, device.type, chosen, params)
+            if isinstance(driver, InStation):
+                driver.join_station(StationContext(model, config, hub, certs))
+            drivers[resource] = driver
     return drivers

@@ -84,7 +84,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     if settings is None:
         raise argparse.ArgumentTypeError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
-                            overrides=overrides)
+                            overrides=overrides, certs=certs)
     zconfig = station_zenoh_config(config, model, identity_of(config, hub), network(config, hub, loopback_port),
                                    certs=certs)
     stop = stop_on_signals()

@@ -40,7 +40,7 @@ from common.wire.messages import (
 )
 
 from .authority import Authority
-from .drivers.base import DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
+from .drivers.base import CallsSupervisor, DeviceUnavailable, Driver, Inputs, Observes, SelftestReport
 from .selftest import SelftestMessage, report_message
 from .shutdown import close_drivers, safe_state_on_exit, wait_for_stop_or_crash
 
@@ -94,6 +94,8 @@ class HubRuntime:
             self._tasks += [asyncio.create_task(self._commands(slot), name=f"commands {slot.name}")
                             for slot in self.slots.values()]
             self._tasks += [asyncio.create_task(self._external_inputs(), name="inputs")]
+            self._tasks += [asyncio.create_task(self._supervisor_calls(slot), name=f"calls {slot.name}")
+                            for slot in self.slots.values() if isinstance(slot.driver, CallsSupervisor)]
             self._tasks.append(asyncio.create_task(self._selftest(), name="selftest"))
             self._tasks.append(asyncio.create_task(self._publish_loop(), name="publish"))
             # The publish loop sleeps between periods instead of waiting on `stop` (a task and a
@@ -259,6 +261,24 @@ class HubRuntime:
         for slot in self.slots.values():
             if isinstance(slot.driver, Observes):
                 slot.driver.observe(values, published_at)
+
+    # --- an operator's call for the supervisor -------------------------------------------------
+    async def _supervisor_calls(self, slot: ResourceSlot) -> None:
+        """A liveliness token while the call stands: the controller hears it begin and end, and a restarted
+        controller finds it still standing."""
+        assert isinstance(slot.driver, CallsSupervisor)
+        token = None
+        try:
+            while True:
+                calling = await slot.driver.next_call()
+                if calling and token is None:
+                    token = self.bus.declare_liveliness(self.keys.call(self.hub, slot.name))
+                elif not calling and token is not None:
+                    token.undeclare()
+                    token = None
+        finally:
+            if token is not None:
+                token.undeclare()
 
     # --- state out ------------------------------------------------------------------------
     async def _publish_loop(self) -> None:

@@ -54,7 +54,7 @@ def hub_grants(keys: Keys, hub: str, resources: Iterable[str], followed: Iterabl
     ctl = keys.ctl("**")
     return [
         Grant(("put",), (*(keys.state(r) for r in own), keys.selftest(hub))),
-        Grant(("liveliness_token",), (keys.alive(hub),)),
+        Grant(("liveliness_token",), (keys.alive(hub), *(keys.call(hub, r) for r in own))),
         Grant(("declare_queryable", "reply"), (keys.selftest(hub),)),
         Grant(("declare_subscriber",), (*(keys.cmd(r) for r in sorted({*own, *followed})), keys.all_state, ctl)),
         Grant(("declare_liveliness_subscriber", "liveliness_query"), (ctl,)),

@@ -322,6 +322,23 @@ class Recovered(Event, tag="recovered", frozen=True):
     template: ClassVar[str] = "watchdog: {resource} recovered"
 
 
+class SupervisorCalled(Event, tag="supervisor_called", frozen=True):
+    """An operator calls the supervisor from the operator's page (its hub holds a token while the call stands)."""
+
+    hub: str
+    resource: str
+    template: ClassVar[str] = "{resource} calls the supervisor (hub {hub})"
+    fault: ClassVar[bool] = True
+
+
+class SupervisorCallEnded(Event, tag="supervisor_call_ended", frozen=True):
+    """The operator's call for the supervisor ended: answered (the station moved on) or its hub stopped."""
+
+    hub: str
+    resource: str
+    template: ClassVar[str] = "{resource}: the call for the supervisor ended (hub {hub})"
+
+
 class OrderStarted(Event, tag="order_started", frozen=True):
     """The station took the next order: its product's variables got their start values, its operations are
     requested (controller/production/book.py)."""
@@ -348,7 +365,8 @@ class OrderFinished(Event, tag="order_finished", frozen=True):
 
 ConsoleEvent = (Replanned | PlanKept | ShorterPlan | PlannedAlone | NoPlanFound | PlanFound | Livelock | HubAlive
                 | HubGone | MirrorsMissing | HoldReleased | ForbiddenState | ForbiddenStateCleared | RequestAnswered
-                | Unhealthy | Recovered | ControllerChanged | OrderStarted | OrderFinished)
+                | Unhealthy | Recovered | ControllerChanged | OrderStarted | OrderFinished | SupervisorCalled
+                | SupervisorCallEnded)
 
 
 EVENT_WINDOW = 20  # the newest events of a full status

@@ -69,6 +69,21 @@ class Keys:
     def all_alive(self) -> str:
         return f"{self.station}/hub/*/alive"
 
+    def call(self, hub: str, resource: str) -> str:
+        """The liveliness token of an operator's call for the supervisor, alive while the call stands."""
+        return f"{self.station}/hub/{check_name('hub', hub)}/call/{check_name('resource', resource)}"
+
+    @property
+    def all_calls(self) -> str:
+        return f"{self.station}/hub/*/call/*"
+
+    def call_of(self, key: str) -> tuple[str, str] | None:
+        """(`human`, `human`) for `station/hub/human/call/human`, else None."""
+        parts = key.split("/")
+        if len(parts) == 5 and parts[0] == self.station and parts[1] == "hub" and parts[3] == "call":
+            return parts[2], parts[4]
+        return None
+
     @property
     def all_selftest(self) -> str:
         return f"{self.station}/hub/*/selftest"

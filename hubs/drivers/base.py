@@ -12,6 +12,10 @@ Optional capabilities are declared by inheriting them, never probed for:
   tool changer sees where the robot is); the runtime subscribes to them and hands
   their values to `Observes.observe`.
 * `Observes`: the driver takes values of other resources' variables.
+* `CallsSupervisor`: a person at the device can call the supervisor (the operator's page); the hub
+  holds a liveliness token while the call stands, and the controller logs it.
+* `InStation`: the driver needs the station around its device (the model, hubs.toml, its hub): the
+  factory hands it over once built (the operator's page reads the model's confirm conditions).
 """
 
 from __future__ import annotations
@@ -19,8 +23,13 @@ from __future__ import annotations
 import abc
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from common.model import Value
+
+if TYPE_CHECKING:
+    from common.config.hubs_toml import StationConfig
+    from common.model import Model
 
 
 class DeviceUnavailable(Exception):
@@ -116,3 +125,28 @@ class Observes(abc.ABC):
 
         `published_at`: when their publisher sent them (its wall clock, s since the epoch), or
         None when unknown."""
+
+
+@dataclass(frozen=True)
+class StationContext:
+    model: Model
+    config: StationConfig
+    hub: str
+    certs: str | None = None  # the certificate directory given on the command line (`--certs`)
+
+
+class InStation(abc.ABC):
+    """Declared capability: the driver is told the station it serves before the hub connects it."""
+
+    @abc.abstractmethod
+    def join_station(self, station: StationContext) -> None:
+        """The station's model, hubs.toml and this hub's name. Raises ValueError when the driver cannot
+        serve its resource in this station (named in the message)."""
+
+
+class CallsSupervisor(abc.ABC):
+    """Declared capability: a person at the device can call the supervisor."""
+
+    @abc.abstractmethod
+    async def next_call(self) -> bool:
+        """Wait until the call for the supervisor begins (True) or ends (False)."""

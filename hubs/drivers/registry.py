@@ -45,6 +45,7 @@ _TABLE: PluginTable[DriverPlugin] = PluginTable(ENTRY_POINT_GROUP, DriverPlugin,
     "mir": "hubs.drivers.mir_rest:PLUGIN",
     "camera": "hubs.drivers.camera_tracker:PLUGIN",
     "ur": "hubs.drivers.ur_rtde:PLUGIN",
+    "operator": "hubs.drivers.operator_page:PLUGIN",
 })
 
 

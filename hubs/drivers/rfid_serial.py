@@ -42,6 +42,7 @@ import msgspec
 import serial
 
 from common.model import Value
+from hubs.drivers import badge_readers
 from hubs.drivers.base import DeviceUnavailable, NoOutputs, SelftestReport
 from hubs.drivers.params import DriverParams, NonNegative
 from hubs.drivers.reconnect import Backoff, LinkedDriver, ReconnectLogic, describe
@@ -101,6 +102,7 @@ class RfidSerial(NoOutputs, LinkedDriver[ReconnectLogic]):
         self._link = ReconnectLogic(
             f"{resource}@{port}", self._open, self._release, backoff=backoff, on_state=self._on_state
         )
+        badge_readers.register(resource, self)  # the operator's page on this hub shows who it is
 
     # -- Driver API -------------------------------------------------------------------
 
