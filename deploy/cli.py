@@ -165,17 +165,23 @@ def cmd_up(args: argparse.Namespace) -> int:
         return _fail(f"--chaos {args.chaos}: the number of kills cannot be negative")
     if args.chaos and args.in_process:
         return _fail("--chaos kills processes: it needs the station as processes, not --in-process")
+    if args.real and args.in_process:
+        return _fail("--real runs a device's driver: it needs the station as processes, not --in-process")
     if not args.in_process:
         from .local.station import Options, up
 
         config = args.config or DEFAULT_CONFIG
         if not Path(config).is_file():
             return _fail(f"{config}: no such file (--config)")
-        from hubs.factory import check_devices
+        from hubs.factory import check_devices, check_real
 
         station = load_config(config)
+        try:
+            check_real(station, args.real)
+        except ValueError as exc:
+            return _fail(str(exc))
         # A device without driver, or a bad parameter, stops here (the sim world adds simulator addresses).
-        check_devices(station, mode=args.mode, world=args.mode == DeviceMode.SIM)
+        check_devices(station, mode=args.mode, world=args.mode == DeviceMode.SIM, real=args.real)
         production = production_plan(args, station, station.load_model())
         if production is not None:
             # Checked here, so that a bad option stops before any process starts; the station's loop
@@ -187,7 +193,8 @@ def cmd_up(args: argparse.Namespace) -> int:
             if args.model != named:
                 return _fail(f"--model {args.model}: `up` runs the model {config} names ({named}); give the model "
                              f"in that file's [station] model, or use --in-process")
-        return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, failure=failure,
+        return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, real=frozenset(args.real),
+                          failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record,
                           chaos=args.chaos, orders=args.orders, mix=args.mix, production=production))
     from controller.planner.policy import VIRTUAL_BUDGET
@@ -262,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--seed", type=int, default=0, help="seed of emulated outcomes (and of --chaos)")
     up.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
                     help="run every device in this mode (default: as in hubs.toml)")
+    up.add_argument("--real", action="append", default=[], metavar="RESOURCE",
+                    help="run this device in mode real whatever hubs.toml or --mode says, e.g. --real human: the "
+                         "operator's page, whose address up prints (repeatable)")
     up.add_argument("--failure", action="append", default=[], metavar="RESOURCE=P",
                     help="probability of an emulated device's alternative outcome, e.g. nr=0.1 (repeatable)")
     up.add_argument("--fail-rate", type=float, default=0.0, help="shorthand for --failure nr=P")

@@ -13,6 +13,9 @@ simulator at its defaults, or builds the driver wired to a simulator inside the 
 key: how the simulated world of `hubctl up --mode sim` hands each hub its simulators'
 addresses, and how a commissioning engineer tries a parameter without editing hubs.toml.
 
+`real` (`hubctl up --real human`, `hubctl hub --real RESOURCE`) runs the devices it names in mode
+real whatever hubs.toml or `--mode` says: the operator's page beside an emulated station.
+
 `check_devices` reports, each with file, line and key, every device in sim or real mode
 whose type has no driver, and every parameter its driver does not accept: `hubctl config
 check`, `hubctl up` and `hubctl hub` call it before anything starts.
@@ -23,7 +26,7 @@ from __future__ import annotations
 import json
 import tomllib
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +45,7 @@ from .plugins import PluginError
 from .sim.registry import find_simulator
 
 Overrides = Mapping[str, Mapping[str, Any]]  # resource -> parameter -> value
+Real = Collection[str]  # resources run in mode real whatever hubs.toml or `--mode` says
 EMULATION_PARAMS = ("delay", "failure_probability")  # the emulated device's, never a driver's
 
 
@@ -61,6 +65,21 @@ def effective_mode(device_type: str, configured: DeviceMode, override: DeviceMod
     if override == DeviceMode.SIM and find_simulator(device_type) is None:
         return DeviceMode.EMULATE
     return DeviceMode(override)
+
+
+def chosen_mode(resource: str, device_type: str, configured: DeviceMode, override: DeviceMode | None,
+                real: Real = ()) -> DeviceMode:
+    """`effective_mode`, unless `real` names the resource: then mode real."""
+    return DeviceMode.REAL if resource in real else effective_mode(device_type, configured, override)
+
+
+def check_real(config: StationConfig, real: Real, hub: str | None = None) -> None:
+    """Raise ValueError when `real` names a resource that is no device (of `hub`, or of any hub)."""
+    devices = config.hubs[hub].devices if hub is not None else {r for h in config.hubs.values() for r in h.devices}
+    unknown = sorted(set(real) - set(devices))
+    if unknown:
+        where = f"hub {hub!r} serves" if hub is not None else f"{config.path} has"
+        raise ValueError(f"--real {', '.join(unknown)}: {where} no such device (devices: {', '.join(sorted(devices))})")
 
 
 @dataclass(frozen=True)
@@ -113,7 +132,7 @@ def make_driver(resource: str, device_type: str, mode: DeviceMode | str,
 # --- checking every device before anything starts ----------------------------------------------
 
 def device_problems(config: StationConfig, *, hub: str | None = None, mode: DeviceMode | None = None,
-                    overrides: Overrides | None = None, world: bool = False) -> list[ConfigProblem]:
+                    overrides: Overrides | None = None, world: bool = False, real: Real = ()) -> list[ConfigProblem]:
     """Devices (of `hub`, or of every hub) in sim or real mode whose type has no driver, or whose
     parameters their driver does not accept; each with file, line and key. `world`: a sim world
     will supply the parameters of the devices it runs a simulator process for (their address,
@@ -130,7 +149,7 @@ def device_problems(config: StationConfig, *, hub: str | None = None, mode: Devi
             extra = overrides.get(resource, {})
             chosen = device.mode
             try:
-                chosen = effective_mode(device.type, device.mode, mode)
+                chosen = chosen_mode(resource, device.type, device.mode, mode, real)
                 if chosen != DeviceMode.EMULATE:
                     resolve(device.type, chosen, {**device.params, **extra})
                 continue
@@ -162,9 +181,9 @@ def _no_driver(exc: NoDriver, hub: str, configured: DeviceMode, chosen: DeviceMo
 
 
 def check_devices(config: StationConfig, *, hub: str | None = None, mode: DeviceMode | None = None,
-                  overrides: Overrides | None = None, world: bool = False) -> None:
+                  overrides: Overrides | None = None, world: bool = False, real: Real = ()) -> None:
     """Raise ConfigError listing every problem `device_problems` finds."""
-    problems = device_problems(config, hub=hub, mode=mode, overrides=overrides, world=world)
+    problems = device_problems(config, hub=hub, mode=mode, overrides=overrides, world=world, real=real)
     if problems:
         raise ConfigError(problems)
 
@@ -208,8 +227,9 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
 
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
                   mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
-                  overrides: Overrides | None = None, certs: str | None = None) -> dict[str, Driver]:
-    """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`); `failure` overrides the
+                  overrides: Overrides | None = None, certs: str | None = None, real: Real = ()) -> dict[str, Driver]:
+    """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`), `real` names devices run in mode
+    real whatever hubs.toml or `mode` says; `failure` overrides the
     failure probability of emulated resources; `overrides` are merged into the devices' parameters;
     `certs`: the certificate directory given on the command line (a driver serving TLS reads it).
     Raises ConfigError (file, line, key) for a device without driver or with a bad parameter."""
@@ -217,10 +237,11 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     overrides = overrides or {}
     check_overrides(config, hub, overrides)
-    check_devices(config, hub=hub, mode=mode, overrides=overrides)
+    check_real(config, real, hub)
+    check_devices(config, hub=hub, mode=mode, overrides=overrides, real=real)
     drivers: dict[str, Driver] = {}
     for resource, device in config.hubs[hub].devices.items():
-        chosen = effective_mode(device.type, device.mode, mode)
+        chosen = chosen_mode(resource, device.type, device.mode, mode, real)
         params = {**device.params, **overrides.get(resource, {})}
         if chosen == DeviceMode.EMULATE:
             # the real device's parameters are ignored when emulating

@@ -52,6 +52,8 @@ def add_selftest_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default="hubs.toml", help="the station's hubs.toml (default: ./hubs.toml)")
     parser.add_argument("--mode", type=argument(DeviceMode), choices=list(DeviceMode),
                         help="override every device's mode")
+    parser.add_argument("--real", action="append", default=[], metavar="RESOURCE",
+                        help="run this device in mode real, whatever hubs.toml or --mode says (repeatable)")
     parser.add_argument("--params-file", metavar="FILE",
                         help="driver parameter overrides, JSON or .toml: {resource: {parameter: value}}")
 
@@ -72,7 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
                   seed: int = 0, mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
-                  overrides: Mapping[str, Mapping[str, Any]] | None = None, certs: str | None = None) -> int:
+                  overrides: Mapping[str, Mapping[str, Any]] | None = None, certs: str | None = None,
+                  real: Sequence[str] = ()) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
     from common.config.security import identity_of
@@ -84,7 +87,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     if settings is None:
         raise argparse.ArgumentTypeError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
-                            overrides=overrides, certs=certs)
+                            overrides=overrides, certs=certs, real=real)
     zconfig = station_zenoh_config(config, model, identity_of(config, hub), network(config, hub, loopback_port),
                                    certs=certs)
     stop = stop_on_signals()
@@ -98,13 +101,13 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
 
 
 async def run_selftest(config_path: str, hub: str, *, mode: DeviceMode | None = None,
-                       overrides: Mapping[str, Mapping[str, Any]] | None = None) -> int:
+                       overrides: Mapping[str, Mapping[str, Any]] | None = None, real: Sequence[str] = ()) -> int:
     from common.wire.selftest_report import format_report
     from hubs.factory import build_drivers
     from hubs.selftest import run_selftest as selftest
 
     config, model = load_station(config_path)
-    drivers = build_drivers(config, hub, model, mode=mode, overrides=overrides)
+    drivers = build_drivers(config, hub, model, mode=mode, overrides=overrides, real=real)
     report = await selftest(hub, drivers)
     print(format_report(report))
     return 0 if report.ok else 1
@@ -113,7 +116,7 @@ async def run_selftest(config_path: str, hub: str, *, mode: DeviceMode | None = 
 def selftest(args: argparse.Namespace) -> int:
     """Run the self-test the options of `add_selftest_arguments` describe."""
     return asyncio.run(run_selftest(args.config, args.name, mode=args.mode,
-                                    overrides=parameter_overrides(args.params_file)))
+                                    overrides=parameter_overrides(args.params_file), real=args.real))
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -124,7 +127,7 @@ def serve(args: argparse.Namespace) -> int:
     setup_logging(args.name, args.verbose)
     return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
                                seed=args.seed, mode=args.mode, failure=failure, overrides=overrides,
-                               certs=args.certs))
+                               certs=args.certs, real=args.real))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -25,7 +25,7 @@ from hubs.drivers.operator_page.button import OperatorButton
 from hubs.drivers.operator_page.fake_expander import ButtonOnExpander
 from hubs.drivers.operator_page.pushbutton import Pushbutton
 from hubs.factory import device_problems
-from tests.operator_page_support import ROOT, running_page
+from tests.operator_page_support import ROOT, TOKEN, running_page
 
 REPO_FILE = ROOT / "hubs.toml"
 
@@ -149,3 +149,49 @@ def test_the_call_for_the_supervisor_is_a_token_only_its_hub_may_hold() -> None:
     grants = hub_grants(keys, "human", ["human"], [])
     tokens = [grant.keys for grant in grants if "liveliness_token" in grant.messages]
     assert tokens == [(keys.alive("human"), key)]
+
+
+def post_raw(url: str, data: bytes, token: str | None = None) -> tuple[int, dict[str, object]]:
+    request = urllib.request.Request(url, data=data, method="POST", headers={"Content-Type": "application/json"})
+    if token is not None:
+        request.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as error:
+        return error.code, json.loads(error.read())
+
+
+def test_bad_requests_to_the_endpoints_get_a_clear_error_and_change_nothing() -> None:
+    with running_page({"tokens": {"watch": TOKEN}}) as page:
+        nothing_standing = page.run(page.page.view)
+        # A confirm while no instruction stands: refused in the console's words.
+        assert page.post("api/confirm", token=TOKEN) == (409, {
+            "accepted": False, "reason": "human has no instruction to confirm", "refusal": "cannot_confirm"})
+        assert page.run(page.page.view) == nothing_standing
+        page.write(instr_c="mount_filter1")  # a task without a condition: a press would be taken
+        standing = page.run(page.page.view)
+        assert standing.can_confirm
+        wrong, no_token = "wrong-token-0000000000", "wrong or missing device token"
+        bad: list[tuple[str, bytes, str | None, int, str]] = [
+            ("api/confirm", b'{"task": "mount_filter1"}', wrong, 403, no_token),
+            ("api/confirm", b"", None, 403, no_token),
+            ("api/call-supervisor", b"", wrong, 403, no_token),
+            ("api/confirm", b'{"task": "no_such_task"}', TOKEN, 400, "unknown task 'no_such_task'"),
+            ("api/confirm", b'{"task": "mount_filter2"}', TOKEN, 409, "is not the instruction standing"),
+            ("api/confirm", b"not json", TOKEN, 400, "the body is not JSON"),
+            ("api/confirm", b'["mount_filter1"]', TOKEN, 400, 'expected {"task": "TASK"} or no body'),
+            ("api/confirm", b'{"task": 3}', TOKEN, 400, 'expected {"task": "TASK"} or no body'),
+        ]
+        for path, body, token, status, says in bad:
+            answer_status, answer = post_raw(page.url + path, body, token)
+            assert (answer_status, answer["accepted"]) == (status, False), (path, body, answer)
+            assert says in str(answer["reason"]), (path, body, answer)
+            assert page.run(page.page.view) == standing, (path, body)  # nothing changed: button, call, view
+        assert not page.done() and not page.page.supervisor_called
+        # The right token still presses, once: a second press changes nothing more.
+        assert post_raw(page.url + "api/confirm", b'{"task": "mount_filter1"}', TOKEN)[0] == 200
+        confirmed = page.run(page.page.view)
+        status, answer = post_raw(page.url + "api/confirm", b"", TOKEN)
+        assert (status, answer["reason"]) == (409, "human has already confirmed mount_filter1")
+        assert page.run(page.page.view) == confirmed

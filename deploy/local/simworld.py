@@ -56,7 +56,7 @@ from common.model import Model
 from common.plumbing.tasks import cancel_and_wait
 from common.wire.keys import Keys
 from common.wire.messages import Codec
-from hubs.factory import effective_mode
+from hubs.factory import chosen_mode
 from hubs.protocols.coupler import TOOLS
 from hubs.protocols.ur import COMMAND_PORT
 from hubs.sim import cell
@@ -167,6 +167,7 @@ class SimWorld:
     seed: int = 0
     failure: Mapping[str, float] = field(default_factory=dict)
     mode: DeviceMode | None = DeviceMode.SIM  # the `--mode` override; None: as in hubs.toml
+    real: frozenset[str] = frozenset()  # `--real`: these devices run real, no simulator for them
     loopback_port: int | None = None  # the station's bus: couples the operator to camera, dock and RFID
     say: Say = print
     certs: Path | None = None  # the run's certificate directory when the station is secured (localcerts.py)
@@ -185,7 +186,7 @@ class SimWorld:
     def __post_init__(self) -> None:
         for hub in self.config.hubs.values():
             for resource, device in hub.devices.items():
-                chosen = effective_mode(device.type, device.mode, self.mode)
+                chosen = chosen_mode(resource, device.type, device.mode, self.mode, self.real)
                 if chosen == DeviceMode.SIM:
                     self.devices[resource] = device
                     simulator = find_simulator(device.type)
@@ -360,8 +361,8 @@ async def start_world(config: StationConfig, model: Model, options: Any, loopbac
                       say: Say = print, *, certs: Path | None = None) -> SimWorld | None:
     """`hubctl up --mode sim`: the started world, or None after saying why it could not start."""
     world = SimWorld(config, model, Path(options.run_dir) / "sim", speed=options.speed, seed=options.seed,
-                     failure=dict(options.failure), mode=options.mode, loopback_port=loopback_port, say=say,
-                     certs=certs)
+                     failure=dict(options.failure), mode=options.mode, real=frozenset(options.real),
+                     loopback_port=loopback_port, say=say, certs=certs)
     say(f"starting the sim world in {world.run_dir}/ ...")
     try:
         await world.start()

@@ -39,6 +39,7 @@ from deploy.runs.cli import timeline_after_run
 from .chaos import Chaos, ChaosPlan, plan_chaos
 from .done_once import check_done_once, run_recordings
 from .localcerts import local_certs, watcher_zenoh_config
+from .operator_pages import operator_pages
 from .recordings import recording_since
 from .supervisor import Child, Say, Supervisor
 
@@ -80,6 +81,7 @@ class Options:
     speed: float = 1.0
     seed: int = 0
     mode: DeviceMode | None = None
+    real: frozenset[str] = frozenset()  # `--real RESOURCE`: these devices in mode real, whatever `mode` says
     failure: dict[str, float] = field(default_factory=dict)
     time_limit: float = 900.0
     resume: bool = False
@@ -114,6 +116,8 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
                 "--speed", str(options.speed), "--seed", str(options.seed), *secured]
         if options.mode:
             argv += ["--mode", options.mode]
+        for resource in sorted(options.real & set(hub.devices)):
+            argv += ["--real", resource]
         for resource, p in options.failure.items():
             if resource in hub.devices:
                 argv += ["--failure", f"{resource}={p}"]
@@ -241,12 +245,15 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
     children = child_commands(config, options, port, certs)
     keys = config.keys
     scheme = "tls" if certs is not None else "tcp"
+    devices = f"{options.mode or 'as in ' + options.config}" + "".join(f", {r} real" for r in sorted(options.real))
     say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
-        f"on 127.0.0.1:{port}, devices {options.mode or 'as in ' + options.config}, speed x{options.speed}")
+        f"on 127.0.0.1:{port}, devices {devices}, speed x{options.speed}")
     say(f"  {security_banner(config)}" + (f" (this run's certificates: {certs})" if certs else ""))
     say(f"  logs in {options.run_dir}/")
     console = f" --as {operator_identity(config).name} --certs {certs}" if certs else ""
     say(f"  console: hubctl console --config {options.config} --connect {scheme}/127.0.0.1:{port}{console}")
+    for page in operator_pages(config, options.mode, options.real):
+        say(f"  {page.line()}")
     began, began_wall = time.monotonic(), time.time()
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

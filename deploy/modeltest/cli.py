@@ -6,6 +6,10 @@ when another controller commands the hub's resources. Resources that move
 (`unsafe_for_random_commands`, the robot) are refused unless `--allow-motion`, which is
 itself refused unless every device of the hub is simulated or emulated.
 
+`--simulated-operator [DEVICE]` tests an operator's page (the operator's device in mode real): a
+simulated operator presses its Confirm through the page's endpoint, with DEVICE's token, whenever the
+page allows it (simulated_operator.py); without it the test waits for a person to press.
+
 Exit status: 0 every resource passed, 1 a test failed, 2 refused or could not run.
 
 This module is imported by hubctl at start-up: the test machinery (Hypothesis, Zenoh)
@@ -30,6 +34,7 @@ if TYPE_CHECKING:
     from .link import BusThread
     from .runner import Target
     from .session import Options
+    from .simulated_operator import SimulatedOperator
 
 HUB_WAIT_S = 10.0
 CONTROLLER_WATCH_S = 1.0
@@ -161,12 +166,43 @@ def cmd_test(args: argparse.Namespace) -> int:
                   f"Stop it first: two controllers would fight over the hub")
             return 2
         wait_for_hub(bus, config.station.name, args.hub, HUB_WAIT_S)
-        return _run(bus, target, selection.resources, options)
+        operators = simulated_operators(config, model, selection.resources, args.simulated_operator, args.certs)
+        try:
+            return _run(bus, target, selection.resources, options)
+        finally:
+            for operator in operators:
+                operator.stop()
+                print(operator.describe(), flush=True)
     except Refused as exc:
         print(f"hubctl test: refused: {exc}")
         return 2
     finally:
         bus.close()
+
+
+def simulated_operators(config: StationConfig, model: Model, resources: list[str], device: str | None,
+                        certs: str | None) -> list[SimulatedOperator]:
+    """With `--simulated-operator`: one pressing on each operator's page under test, started once its page
+    answers; raises Refused when a page cannot be pressed on."""
+    if device is None:
+        return []
+    from .simulated_operator import NoOperatorPage, SimulatedOperator, page_access
+
+    operators = [r for r in resources if model.resource_by_name[r].device_type == "operator"]
+    if not operators:
+        raise Refused(f"--simulated-operator: no operator among the resources under test ({', '.join(resources)})")
+    started: list[SimulatedOperator] = []
+    try:
+        for resource in operators:
+            operator = SimulatedOperator(page_access(config, resource, device or None, certs))
+            operator.wait_for_page(HUB_WAIT_S)
+            started.append(operator.start())
+            print(f"  a simulated operator presses Confirm on {operator.access.url} whenever it may", flush=True)
+    except NoOperatorPage as exc:
+        for operator in started:
+            operator.stop()
+        raise Refused(str(exc)) from None
+    return started
 
 
 def _run(bus: BusThread, target: Target, resources: list[str], options: Options) -> int:
@@ -233,6 +269,10 @@ def register_test_command(sub: argparse._SubParsersAction[argparse.ArgumentParse
                         help="with [security] mode = \"tls\": the certificate directory holding the controller's "
                              "certificate (default: [security] certs)")
     parser.add_argument("--model", help="hold the hub to this model (module:function) instead of the station's")
+    parser.add_argument("--simulated-operator", nargs="?", const="", metavar="DEVICE",
+                        help="an operator's page (device in mode real) under test: a simulated operator presses "
+                             "Confirm through its endpoint whenever the page allows, with the token of DEVICE in "
+                             "hubs.toml (default: the page's only token, or none)")
     parser.set_defaults(func=cmd_test)
     return parser
 
