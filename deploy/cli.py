@@ -355,6 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     register_run_commands(sub)
     register_orders_command(sub)
+    from .router.cli import register_router_command
+
+    register_router_command(sub)
     return parser
 
 
