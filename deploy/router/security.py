@@ -98,3 +98,13 @@ def router_tls(line: LineConfig, name: str, certs: Path | None = None) -> TlsSet
     stations = [load_station(s.config) for s in line.stations.values()]
     return TlsSettings(files.root_ca, files.certificate, files.private_key,
                        line_access_control(stations, line.routers), verify_names=False)
+
+
+def peer_access_control(routers: Iterable[str]) -> dict[str, Any]:
+    """What a client of the routers (the line controller) enforces on its link: the routers may send it
+    anything (they checked it on its way in), no one else reaches it."""
+    rules = _rules("router", [Grant(ALL_MESSAGES, ("**",))], "ingress") + \
+        _rules("to-router", [Grant(ALL_MESSAGES, ("**",))], "egress")
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": [{"id": "routers", "cert_common_names": list(routers)}],
+            "policies": [{"id": "routers", "rules": [r["id"] for r in rules], "subjects": ["routers"]}]}
