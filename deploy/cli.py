@@ -358,6 +358,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .router.cli import register_router_command
 
     register_router_command(sub)
+    from .line.cli import register_line_commands
+
+    register_line_commands(sub)
     return parser
 
 

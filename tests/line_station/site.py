@@ -1,8 +1,9 @@
 """A test line on this machine: line.toml, two routers and N copies of the line station's hubs.toml.
 
 Each station gets a name unique to the run (runs on one machine never hear each other), holder names
-prefixed with its line name (`s1-ctl`, `s1-pi-tool`: certificate names are unique on a line), and the
-endpoint of its router; stations alternate between the routers so that handovers cross both.
+prefixed with its line name (`s1-ctl`, `s1-pi-tool`: certificate names are unique on a line), the
+endpoint of its router and its own recordings' directory (`s1/runs`); stations alternate between the
+routers so that handovers cross both.
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ TEMPLATE = Path(__file__).with_name("hubs.toml")
 ROUTERS = ("r1", "r2")
 
 
-def station_toml(name: str, prefix: str, router_endpoint: str, *, tls: bool = False) -> str:
+def station_toml(name: str, prefix: str, router_endpoint: str, runs: Path, *, tls: bool = False) -> str:
     text = TEMPLATE.read_text()
     replacements = [
+        ("stale_after_s = 1.0", f'stale_after_s = 1.0\n\n[controller.recording]\ndir = "{runs}"'),
         ('name = "line_station"', f'name = "{name}"'),
         ('name = "ctl"', f'name = "{prefix}-ctl"'),
         ('connect = ["tcp/127.0.0.1:7501"]', f'connect = ["{router_endpoint}"]'),
@@ -50,7 +52,8 @@ def write_line(directory: Path, stations: int = 3, *, tls: bool = False) -> Path
         router = ROUTERS[index % len(ROUTERS)]
         folder = directory / name
         folder.mkdir(parents=True, exist_ok=True)
-        (folder / "hubs.toml").write_text(station_toml(f"{name}_{run}", name, endpoint[router], tls=tls))
+        (folder / "hubs.toml").write_text(
+            station_toml(f"{name}_{run}", name, endpoint[router], folder / "runs", tls=tls))
         lines.append(f'[stations.{name}]\nconfig = "{name}/hubs.toml"\nrouter = "{router}"\n')
     lines.append("[route]\nstations = [" + ", ".join(f'"{n}"' for n in names) + "]\n")
     path = directory / "line.toml"
