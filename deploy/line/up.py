@@ -31,8 +31,10 @@ from deploy.local.done_once import DoneOnce, check_done_once, run_recordings
 from deploy.local.supervisor import Say, Supervisor
 from deploy.remote.restart_policy import UP_RESTART, RestartPolicy
 
+from .certs import line_certs
 from .overview import Overview, StationRow, StationState, overview_text
 from .processes import line_controller_child, router_child, station_children
+from .security import line_controller_tls
 from .store import VisitState, open_read_only
 
 RUN_DIR = Path("var/line")
@@ -94,15 +96,18 @@ def _progress(db: Path, route_length: int) -> tuple[int, int, int]:
 class StationWatch:
     """Every station's status through one client session per router."""
 
-    def __init__(self, line: LineConfig, overview: Overview, clock: Callable[[], float]) -> None:
+    def __init__(self, line: LineConfig, overview: Overview, clock: Callable[[], float],
+                 certs: Path | None = None) -> None:
         self.line = line
+        self.certs = certs
         self.overview = overview
         self.clock = clock
         self.keys: dict[str, Keys] = {name: load_config(s.config).keys for name, s in line.stations.items()}
 
     async def follow(self, router: str, stop: asyncio.Event) -> None:
+        # With TLS it presents the line controller's certificate: what may read every station's status.
         config = zenoh_config(NetworkMode.CLIENT, connect=self.line.router_endpoints(router),
-                              lease_ms=self.line.lease_ms)
+                              lease_ms=self.line.lease_ms, tls=line_controller_tls(self.line, self.certs))
         while not stop.is_set():
             try:
                 async with ZenohBus(config) as bus:
@@ -134,21 +139,28 @@ class StationWatch:
 
 async def run_line(options: LineOptions, say: Say = print) -> LineResult:
     line = load_line(options.config)
+    with line_certs(line) as certs:
+        return await _run_line(options, say, line, certs)
+
+
+async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Path | None) -> LineResult:
     run_dir = options.run_dir
     began, began_wall = time.monotonic(), time.time()
     station_children_all = [c for name in line.route
-                            for c in station_children(line.stations[name], run_dir, record=options.record)]
-    routers = Supervisor([router_child(line, r, run_dir) for r in line.routers], ROUTER_RESTART, say)
-    processes = Supervisor([*station_children_all, line_controller_child(line, run_dir, options.products)],
+                            for c in station_children(line.stations[name], run_dir, record=options.record, certs=certs)]
+    routers = Supervisor([router_child(line, r, run_dir, certs) for r in line.routers], ROUTER_RESTART, say)
+    processes = Supervisor([*station_children_all, line_controller_child(line, run_dir, options.products, certs)],
                            UP_RESTART, say)
     say(f"statehub line up: line {line.name}, {len(line.route)} stations ({' -> '.join(line.route)}), "
         f"{len(line.routers)} routers, {options.products} products; logs in {run_dir}/")
+    say("  links: mutual TLS with the site's certificates, access control at the routers" if certs is not None
+        else "  links: INSECURE plain TCP (line.toml [security] mode = \"insecure\"): for one machine only")
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     overview = Overview(line.route)
-    watch = StationWatch(line, overview, time.monotonic)
+    watch = StationWatch(line, overview, time.monotonic, certs)
     result = LineResult(False, 0, options.products, 0.0)
     headlines: dict[str, tuple[object, ...]] = {}
     await routers.start()

@@ -3,8 +3,9 @@
 The router enforces, on every link, the access control of every station of the line (each derived from
 the station's own hubs.toml, common/config/acl.py) under its holders' certificate names, plus:
 
-* the line controller (certificate name LINE_CONTROLLER_NAME): query each station's `ctl/orders` and
-  subscribe to its `ctl/status`, nothing else: it cannot command a resource;
+* the line controller (certificate name LINE_CONTROLLER_NAME, also what `hubctl line up`'s overview
+  presents): query each station's `ctl/orders`, and subscribe to and query its `ctl/status`, nothing
+  else: it cannot command a resource;
 * the other routers: anything, both ways. A message another router forwards was checked on its way in
   at the router its sender is a client of: each router checks its own clients.
 
@@ -34,7 +35,7 @@ LINE_CONTROLLER_NAME = "line-controller"
 def line_controller_grants(stations: Iterable[Keys]) -> list[Grant]:
     keys = list(stations)
     return [
-        Grant(("query",), tuple(k.ctl(ORDERS_KEY) for k in keys)),
+        Grant(("query",), tuple(key for k in keys for key in (k.ctl(ORDERS_KEY), k.ctl("status")))),
         Grant(("declare_subscriber",), tuple(k.ctl("status") for k in keys)),
     ]
 
