@@ -52,6 +52,9 @@ async def test_a_line_of_three_stations_survives_a_router_restart(tmp_path):
     assert result.restarts["router r2"] == 1, text
     assert "KILLED router r2" in text
     assert result.unreachable_seen.get("s2", 0) >= 1, text  # the overview said it could not reach s2
+    line_log = (tmp_path / "run" / "line-controller.log").read_text()
+    assert "station s2 unreachable: its handovers wait" in line_log  # and the line controller waited
+    assert "station s2 reachable again" in line_log
     assert set(result.done_once) == {"s1", "s2", "s3"}
     for station, done in result.done_once.items():
         assert done.finishes, (station, done.text())

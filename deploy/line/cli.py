@@ -18,7 +18,7 @@ def register_line_commands(sub: argparse._SubParsersAction[argparse.ArgumentPars
     line = sub.add_parser("line", help="a line of stations over Zenoh routers (line.toml)")
     commands = line.add_subparsers(dest="line_command", required=True)
     ctl = commands.add_parser("controller", help="run the line controller: it hands the products from station to "
-                                                 "station (what its systemd unit runs)")
+                                                 "station")
     controller.add_arguments(ctl)
     ctl.set_defaults(func=controller.run)
     up = commands.add_parser("up", help="run the whole line on this machine: routers, stations, line controller; "
