@@ -8,7 +8,7 @@ import pytest
 from common.wire.ctl import OrderDone, ProductionInfo, ResourceHealthInfo, StatusMessage
 from common.wire.orders import Order
 from deploy.line.overview import UNREACHABLE_AFTER_S, Overview, StationState
-from deploy.line.up import LineOptions, RouterOutage, run_line
+from deploy.line.up import Kill, LineOptions, run_line
 from tests.line_station.site import write_line
 
 
@@ -36,20 +36,26 @@ def test_the_overview_says_state_product_cycle_health_and_unreachable():
     assert "UNHEALTHY nr" in rows["s2"].text()
 
 
+# Router r2 (station s2's) once a product left s1 (it restarts 5 s later); then the line controller and s2's
+# controller (each restarts after 1 s, from its SQLite file).
+KILLS = (Kill("router r2", 1), Kill("line controller", 3), Kill("s2 controller", 4))
+
+
 @pytest.mark.slow
 async def test_a_line_of_three_stations_survives_a_router_restart(tmp_path):
-    """3 stations over two routers, 5 products; router r2 (station s2's) is killed once a product left s1 and
-    restarts 5 s later: s1 and s3 go on, s2 is unreachable meanwhile and its handovers wait; every product
-    leaves s3 and each station did every operation of every product once."""
+    """3 stations over two routers, 5 products, KILLS on the way: s1 and s3 go on while r2 is down, s2 is
+    unreachable meanwhile and its handovers wait; every product leaves s3 and each station did every operation
+    of every product once."""
     line = write_line(tmp_path, 3)
     said: list[str] = []
     result = await run_line(LineOptions(config=str(line), products=5, run_dir=tmp_path / "run", time_limit=300,
-                                        overview_every_s=5.0, outage=RouterOutage("r2", after_products=1)),
+                                        overview_every_s=5.0, kills=KILLS),
                             said.append)
     text = "\n".join(said)
     assert result.finished, text
     assert (result.products_done, result.products) == (5, 5)
-    assert result.restarts["router r2"] == 1, text
+    assert (result.restarts["router r2"], result.restarts["line controller"], result.restarts["s2 controller"]) \
+        == (1, 1, 1), text
     assert "KILLED router r2" in text
     assert result.unreachable_seen.get("s2", 0) >= 1, text  # the overview said it could not reach s2
     line_log = (tmp_path / "run" / "line-controller.log").read_text()

@@ -43,10 +43,11 @@ ROUTER_RESTART = RestartPolicy(delay_s=5.0)
 
 
 @dataclass(frozen=True)
-class RouterOutage:
-    """Kill router `router` (SIGKILL) once `after_products` products left the first station."""
+class Kill:
+    """Kill `process` (SIGKILL; a name of the run's processes: "router r2", "line controller", "s2 controller")
+    once `after_products` products left the first station; it restarts as its unit would restart it."""
 
-    router: str
+    process: str
     after_products: int
 
 
@@ -58,7 +59,7 @@ class LineOptions:
     time_limit: float = 900.0
     overview_every_s: float = 10.0
     record: bool = True
-    outage: RouterOutage | None = None
+    kills: tuple[Kill, ...] = ()
 
 
 @dataclass
@@ -166,7 +167,7 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
     await routers.start()
     await processes.start()
     watchers = [asyncio.create_task(watch.follow(r, stop), name=f"watch {r}") for r in line.routers]
-    outage = options.outage
+    kills = list(options.kills)
     next_overview = time.monotonic() + options.overview_every_s
     try:
         while not stop.is_set():
@@ -182,11 +183,11 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
             if routers.gave_up or processes.gave_up:
                 say((routers.gave_up or processes.gave_up).message())  # type: ignore[union-attr]
                 break
-            if outage is not None and first >= outage.after_products:
-                pid = routers.kill(f"router {outage.router}")
-                say(f"     run {elapsed:6.1f}s  KILLED router {outage.router} (pid {pid}): the stations behind it "
-                    f"are cut off until it restarts")
-                outage = None
+            for kill in [k for k in kills if first >= k.after_products]:
+                kills.remove(kill)
+                supervisor = routers if kill.process in routers.children else processes
+                pid = supervisor.kill(kill.process)
+                say(f"     run {elapsed:6.1f}s  KILLED {kill.process} (pid {pid})")
             if now >= next_overview:
                 say(overview_text(overview.rows(now), last, total, elapsed))
                 next_overview = now + options.overview_every_s
