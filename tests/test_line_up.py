@@ -68,3 +68,19 @@ async def test_a_line_of_three_stations_survives_a_router_restart(tmp_path):
         # each of the 2 operations finished once per product: 5 times, with the 4 resets between products
         assert done.finishes == {"TightenBolt1": 5, "TightenBolt2": 5}, (station, done.text())
     assert [r.done for r in result.last_rows] == [5, 5, 5]
+
+
+@pytest.mark.slow
+async def test_a_line_runs_with_tls_and_access_control_at_the_routers(tmp_path):
+    """The same line with [security] mode = "tls": a throw-away site CA, every router enforcing the stations'
+    and the line controller's access control; the line controller's order queries and the overview's status
+    reads pass it, and the line finishes."""
+    line = write_line(tmp_path, 2, tls=True)
+    said: list[str] = []
+    result = await run_line(LineOptions(config=str(line), products=2, run_dir=tmp_path / "run", time_limit=240,
+                                        overview_every_s=5.0), said.append)
+    text = "\n".join(said)
+    assert "links: mutual TLS with the site's certificates" in text
+    assert result.finished, text
+    assert [r.done for r in result.last_rows] == [2, 2], text
+    assert all(not d.redone() for d in result.done_once.values())

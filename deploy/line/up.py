@@ -40,6 +40,7 @@ from .store import VisitState, open_read_only
 RUN_DIR = Path("var/line")
 # A router comes back after a few seconds, as its unit's RestartSec would bring it back.
 ROUTER_RESTART = RestartPolicy(delay_s=5.0)
+OVERVIEW_SETTLE_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -179,6 +180,7 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
                 _report_change(row, headlines, result, elapsed, say)
             if total and last == total:
                 result.finished = True
+                await _settle(overview, total)
                 break
             if routers.gave_up or processes.gave_up:
                 say((routers.gave_up or processes.gave_up).message())  # type: ignore[union-attr]
@@ -219,6 +221,14 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
             result.done_once[name] = check_done_once(recordings)
             say(f"  {name}: {result.done_once[name].text()}")
     return result
+
+
+async def _settle(overview: Overview, products: int, within_s: float = OVERVIEW_SETTLE_S) -> None:
+    """Let the stations' last statuses reach the overview: the line controller may learn from an order list
+    that the last product left before the station's next status says so."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline and any(r.done < products for r in overview.rows(time.monotonic())):
+        await asyncio.sleep(0.1)
 
 
 def _report_change(row: StationRow, headlines: dict[str, tuple[object, ...]], result: LineResult, elapsed: float,
