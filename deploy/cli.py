@@ -372,6 +372,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     register_run_commands(sub)
     register_orders_command(sub)
+    from .router.cli import register_router_command
+
+    register_router_command(sub)
+    from .line.cli import register_line_commands
+
+    register_line_commands(sub)
     return parser
 
 

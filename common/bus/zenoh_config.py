@@ -29,6 +29,11 @@ DEFAULT_MAX_MESSAGE_BYTES = 4 * 1024 * 1024
 # goes out every 500 ms, so one lost keep-alive never expires a healthy link.
 KEEP_ALIVES_PER_LEASE = 4
 
+# A client's one link is to a router of the site's CA, which enforces the access control on its clients'
+# links (deploy/router/security.py): the station's own rules name the station's holders only, so on the
+# client they would deny the router, its only neighbour, everything.
+CLIENT_ACCESS_CONTROL: dict[str, Any] = {"enabled": False}
+
 ZenohConfig = zenoh.Config  # what `ZenohBus` opens; callers name the type without importing zenoh
 
 
@@ -90,7 +95,8 @@ def zenoh_config(mode: NetworkMode | str = NetworkMode.PEER, listen: Iterable[st
       Gossip scouting stays on in peer mode so peers that share a listener learn of each other.
     * `lease_ms`: the transport lease this process declares to its neighbours; they
       close the link (and drop its liveliness tokens) when it is silent that long.
-    * `tls`: mutual TLS and access control; every endpoint must then be a `tls/` one.
+    * `tls`: mutual TLS and access control; every endpoint must then be a `tls/` one. A client leaves
+      the access control to its router (CLIENT_ACCESS_CONTROL).
       Gossip only passes on locators over links that are already authenticated.
     """
     if mode not in words(NetworkMode):
@@ -121,6 +127,8 @@ def zenoh_config(mode: NetworkMode | str = NetworkMode.PEER, listen: Iterable[st
         settings["listen/endpoints"] = listen
     if tls is not None:
         settings.update(tls.settings())
+        if mode == NetworkMode.CLIENT:
+            settings["access_control"] = CLIENT_ACCESS_CONTROL
     # Leave connect/timeout_ms alone: a peer's open() then returns after ~0.5 s even when
     # nobody listens yet, and keeps retrying in the background (timeout 0 stops the retries).
     for key, value in settings.items():

@@ -220,6 +220,34 @@ def controller_unit(config: StationConfig, layout: Layout = ON_TARGET,
                                          f"{config.station.name}", service, CONTROLLER_LIMITS, systemd_version))
 
 
+ROUTER_LIMITS = Limits(watchdog="10s", memory="512M", tasks=64)
+
+
+def router_unit_name(router: str) -> str:
+    return f"statehub-router-{router}.service"
+
+
+def router_unit(line_toml: str, router: str, *, secured: bool, base: str = "/opt/statehub/router",
+                systemd_version: int = DEFAULT_SYSTEMD) -> Unit:
+    """A Zenoh router of the line (deploy/router/): the same template as the hubs' and the controller's, with
+    no state and no devices; its release under `base`/current like theirs."""
+    current = f"{base}/current"
+    certs = ["--certs", f"{base}/certs"] if secured else []
+    name = router_unit_name(router)
+    command = _exec(f"{current}/venv/bin/python", "-P", "-m", "deploy.router", "--config", line_toml,
+                    "--name", router, *certs)
+    service = [
+        f"User={SERVICE_USER}",
+        f"Group={SERVICE_USER}",
+        f"ExecStart={command}",
+        f"SyslogIdentifier={name.removesuffix('.service')}",
+        "PrivateDevices=yes",
+        "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK",
+    ]
+    return Unit(name, _render(f"statehub Zenoh router {router} of the line", service, ROUTER_LIMITS,
+                              systemd_version))
+
+
 def station_units(config: StationConfig, layout: Layout = ON_TARGET,
                   systemd_version: int = DEFAULT_SYSTEMD) -> list[Unit]:
     """The controller's unit, then each hub's, in hubs.toml order."""

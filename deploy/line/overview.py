@@ -1,0 +1,83 @@
+"""The line overview: every station's state, current product, cycle time, health, and which stations
+cannot be reached, from the stations' own `ctl/status` (what `hubctl line up` prints).
+
+A station is unreachable when no status of it came for UNREACHABLE_AFTER_S (a station controller publishes
+a few times a second): its router is down, or the link to it, or the station controller itself. It runs
+on by itself meanwhile; the overview says so and says when it is back.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from common.wire.ctl import StatusMessage
+
+UNREACHABLE_AFTER_S = 3.0
+
+
+class StationState(enum.StrEnum):
+    WAITING = "waiting"  # no status yet
+    IDLE = "idle"  # no product on the station
+    WORKING = "working"  # a product's order runs
+    UNREACHABLE = "unreachable"
+
+
+@dataclass(frozen=True)
+class StationRow:
+    station: str
+    state: StationState
+    product: str  # the current product, "" when none
+    cycle_s: float | None  # the last finished order's cycle
+    done: int  # orders the station finished
+    unhealthy: tuple[str, ...]  # its unhealthy resources
+
+    def text(self) -> str:
+        cycle = f"{self.cycle_s:5.1f} s" if self.cycle_s is not None else "    -  "
+        health = "ok" if not self.unhealthy else "UNHEALTHY " + ", ".join(self.unhealthy)
+        return f"  {self.station:<6} {self.state:<11} {self.product or '-':<22} cycle {cycle}  done {self.done:3d}  " \
+               f"{health}"
+
+    def headline(self) -> tuple[StationState, str, tuple[str, ...]]:
+        """What a change of is printed as it happens."""
+        return self.state, self.product, self.unhealthy
+
+
+class Overview:
+    def __init__(self, stations: Sequence[str]) -> None:
+        self.stations = tuple(stations)
+        self.statuses: dict[str, StatusMessage] = {}
+        self.seen_at: dict[str, float] = {}
+
+    def take(self, station: str, status: StatusMessage, now: float) -> None:
+        self.statuses[station] = status
+        self.seen_at[station] = now
+
+    def row(self, station: str, now: float) -> StationRow:
+        status = self.statuses.get(station)
+        if status is None:
+            return StationRow(station, StationState.WAITING, "", None, 0, ())
+        production = status.production
+        current = production.current if production is not None else None
+        recent = production.recent if production is not None else []
+        cycle = recent[-1].cycle_s if recent else None
+        unhealthy = tuple(sorted(h.resource for h in status.health if not h.healthy))
+        if now - self.seen_at[station] > UNREACHABLE_AFTER_S:
+            state = StationState.UNREACHABLE
+        else:
+            state = StationState.WORKING if current is not None else StationState.IDLE
+        return StationRow(station, state, current.product_id if current is not None else "", cycle,
+                          production.done if production is not None else 0, unhealthy)
+
+    def rows(self, now: float) -> list[StationRow]:
+        return [self.row(station, now) for station in self.stations]
+
+    def unreachable(self, now: float) -> list[str]:
+        return [r.station for r in self.rows(now) if r.state is StationState.UNREACHABLE]
+
+
+def overview_text(rows: Iterable[StationRow], products_done: int, products: int, elapsed: float) -> str:
+    lines = [f"line at {elapsed:6.1f} s: {products_done}/{products} products left the last station"]
+    lines += [row.text() for row in rows]
+    return "\n".join(lines)
