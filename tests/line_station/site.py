@@ -33,7 +33,7 @@ def station_toml(name: str, prefix: str, router_endpoint: str, runs: Path, *, tl
     for old, new in replacements:
         assert old in text, old
         text = text.replace(old, new)
-    return text
+    return text + f'\n[overview]\nname = "{prefix}-overview"\n'  # the viewer's certificate, unique on the line too
 
 
 def write_line(directory: Path, stations: int = 3, *, tls: bool = False) -> Path:
