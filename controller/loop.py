@@ -20,11 +20,13 @@ operations of the next order are requested.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from common.model import OperationState, TransitionKind, Value
+from common.model import Duration, OperationState, TransitionKind, Value
 from common.model.durations import effect_owner
+from common.resources import durations_of
 from common.wire.ctl import (
     ConsoleEvent,
     ConsoleReply,
@@ -43,12 +45,20 @@ from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predic
 from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
+from .planner.plans import Execution, PlanStep
 from .production.flow import OrderFlow
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
+from .timed_check import TimedCheck, TimingRefusal
 
 NOT_HELD: frozenset[str] = frozenset()
+# A plan the engine's own order breaks at some timing runs in the first stricter order none breaks.
+STRICTER = {
+    Execution.PARTIAL_ORDER: (Execution.TRACE, Execution.SEQUENCE),
+    Execution.TRACE: (Execution.SEQUENCE,),
+    Execution.SEQUENCE: (),
+}
 
 
 @dataclass(frozen=True)
@@ -70,11 +80,17 @@ class Adopted:
 
 class ControlLoop:
     def __init__(self, core: ControlCore, recorder: RunRecorder, commanded: Iterable[str],
-                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None) -> None:
+                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None,
+                 durations: Mapping[str, Duration] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
         `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
-        the model's), for the plans' predicted finish and bound."""
+        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval
+        (default: the model's), what plans are checked in time against before use (controller/timed_check.py)."""
         self.core = core
+        if durations is None:
+            durations = {e.resource: e.duration for e in durations_of(core.model).entries}
+        self.timed = TimedCheck(core.compiled, durations)
+        self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
         self.cycle = CycleRecord([r.name for r in core.model.resources])
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
@@ -199,6 +215,8 @@ class ControlLoop:
         """The first answer to `request`."""
         log = self.core.events.log
         cursor = log.total
+        if isinstance(result, Plan):
+            result = self._in_time(request, result)
         taken = self.core.adopt(request, result)
         self.recorder.plan(request, result, taken=taken, note=note)
         if taken:
@@ -206,12 +224,43 @@ class ControlLoop:
         return Adopted(taken, log.since(cursor).events)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
-        """A shorter plan for `request`, after its first answer; True if taken."""
+        """A shorter plan for `request`, after its first answer; True if taken: only one the engine's own order
+        follows at every timing (a kept rest of it runs in the order of the plan under way)."""
+        refused = self._refusal(request, better, self.core.engine.execution)
+        if refused is not None:
+            self.refusals.append(refused)
+            self.recorder.plan(request, better, taken=False, improvement=True)
+            return False
         taken = self.core.improve(request, better)
         self.recorder.plan(request, better, taken=taken, improvement=True)
         if taken:
             self._estimate()
         return taken
+
+    def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
+        goals = {name: self.core.model.operation_by_name[name].goal for name in plan.goals
+                 if name in self.core.model.operation_by_name}
+        planner, disabled = self.core.planner, request.disabled
+
+        def revalidate(state: tuple[Value, ...], steps: Sequence[PlanStep]) -> Plan | None:
+            return planner.revalidate(state, steps, goals, disabled)
+
+        return self.timed.refusal(plan, disabled, execution, revalidate if goals else None)
+
+    def _in_time(self, request: PlanRequest, plan: Plan) -> Plan:
+        """The plan, to run in the engine's order if no timing of its effects breaks it there, else in the first
+        stricter order none breaks (the nutrunner started only once the operator is told to tighten pipe 2)."""
+        own = self.core.engine.execution
+        refused = self._refusal(request, plan, own)
+        if refused is None:
+            return plan
+        self.refusals.append(refused)
+        for stricter in STRICTER[own]:
+            again = self._refusal(request, plan, stricter)
+            if again is None:
+                return dataclasses.replace(plan, execution=stricter)
+            self.refusals.append(again)
+        return dataclasses.replace(plan, execution=Execution.SEQUENCE) if STRICTER[own] else plan
 
     def solve(self, request: PlanRequest) -> Adopted:
         """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds)."""
