@@ -46,6 +46,7 @@ from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
 from .planner.plans import Execution, PlanStep
+from .planner.reuse import memory_key
 from .production.flow import OrderFlow
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
@@ -59,6 +60,7 @@ STRICTER = {
     Execution.TRACE: (Execution.SEQUENCE,),
     Execution.SEQUENCE: (),
 }
+LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
 
 
 @dataclass(frozen=True)
@@ -211,12 +213,13 @@ class ControlLoop:
         """The planner's note on an answer (a goal planned alone), logged before the answer is handed over."""
         self.core.events.log.emit(event)
 
-    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None) -> Adopted:
-        """The first answer to `request`."""
+    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None,
+              *, checked: bool = False) -> Adopted:
+        """The first answer to `request`; `checked`: a plan already checked in time (`solve`)."""
         log = self.core.events.log
         cursor = log.total
-        if isinstance(result, Plan):
-            result = self._in_time(request, result)
+        if isinstance(result, Plan) and not checked:
+            result, _ = self._in_time(request, result)
         taken = self.core.adopt(request, result)
         self.recorder.plan(request, result, taken=taken, note=note)
         if taken:
@@ -247,24 +250,48 @@ class ControlLoop:
 
         return self.timed.refusal(plan, disabled, execution, revalidate if goals else None)
 
-    def _in_time(self, request: PlanRequest, plan: Plan) -> Plan:
+    def _in_time(self, request: PlanRequest, plan: Plan) -> tuple[Plan, TimingRefusal | None]:
         """The plan, to run in the engine's order if no timing of its effects breaks it there, else in the first
-        stricter order none breaks (the nutrunner started only once the operator is told to tighten pipe 2)."""
+        stricter order none breaks (the nutrunner started only once the operator is told to tighten pipe 2);
+        with the refusal when every order is broken (the plan itself counts on an effect waiting)."""
         own = self.core.engine.execution
         refused = self._refusal(request, plan, own)
         if refused is None:
-            return plan
+            return plan, None
         self.refusals.append(refused)
         for stricter in STRICTER[own]:
             again = self._refusal(request, plan, stricter)
             if again is None:
-                return dataclasses.replace(plan, execution=stricter)
+                return dataclasses.replace(plan, execution=stricter), None
             self.refusals.append(again)
-        return dataclasses.replace(plan, execution=Execution.SEQUENCE) if STRICTER[own] else plan
+            refused = again
+        return dataclasses.replace(plan, execution=Execution.SEQUENCE), refused
+
+    def _learn(self, refused: TimingRefusal, request: PlanRequest) -> bool:
+        """Forbid the race a refused plan lost for the planning to come; False if nothing new is learnt."""
+        compiled = self.core.compiled
+        victim, due = compiled.by_name.get(refused.transition), compiled.by_name.get(refused.effect)
+        if victim is None or due is None or victim.kind is TransitionKind.AUTOMATIC:
+            return False
+        planner = self.core.planner
+        if not planner.timed_races.forbid(victim, due):
+            return False
+        planner.memory.forget(memory_key(request.goals, request.disabled))  # it remembers the refused plan
+        return True
 
     def solve(self, request: PlanRequest) -> Adopted:
-        """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds)."""
-        return self.adopt(request, self.core.solve(request))
+        """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds). A plan that
+        every order breaks in time teaches the planner the race it lost, and is planned again without it
+        (`LEARN_PER_REQUEST` times at most); then the strictest order runs it, the livelock watch the last line."""
+        result = self.core.solve(request)
+        for _ in range(LEARN_PER_REQUEST + 1):
+            if not isinstance(result, Plan):
+                break
+            checked, refused = self._in_time(request, result)
+            if refused is None or not self._learn(refused, request):
+                return self.adopt(request, checked, checked=True)
+            result = self.core.solve(request)
+        return self.adopt(request, result)
 
     def _estimate(self) -> None:
         """The predicted finish and the bound of the plan just taken (what is left of it, from now)."""
