@@ -46,6 +46,7 @@ from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
 from .planner.plans import Execution, PlanStep
+from .planner.policy import solve_goals
 from .planner.reuse import memory_key
 from .production.flow import OrderFlow
 from .production.throughput import order_line
@@ -61,6 +62,7 @@ STRICTER = {
     Execution.SEQUENCE: (),
 }
 LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
+LEARNT_SEARCH_SHARE = 10  # of the satisficing member's budget, what a search with races learnt may spend
 
 
 @dataclass(frozen=True)
@@ -283,15 +285,38 @@ class ControlLoop:
         """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds). A plan that
         every order breaks in time teaches the planner the race it lost, and is planned again without it
         (`LEARN_PER_REQUEST` times at most); then the strictest order runs it, the livelock watch the last line."""
-        result = self.core.solve(request)
+        races = self.core.planner.timed_races
+        result = self._solve(request, learnt=bool(races))
         for _ in range(LEARN_PER_REQUEST + 1):
+            if isinstance(result, NoPlan) and races:
+                # No plan wins every race learnt: the one that loses one is all there is. It runs, fails, and the
+                # livelock watch names the effect it lost, as it did before plans were checked in time.
+                with races.suspended_while():
+                    result = self.core.solve(request)
+                if isinstance(result, Plan):
+                    result, _ = self._in_time(request, result)
+                    return self.adopt(request, result, checked=True)
             if not isinstance(result, Plan):
                 break
             checked, refused = self._in_time(request, result)
             if refused is None or not self._learn(refused, request):
                 return self.adopt(request, checked, checked=True)
-            result = self.core.solve(request)
+            result = self._solve(request, learnt=True)
         return self.adopt(request, result)
+
+    def _solve(self, request: PlanRequest, *, learnt: bool) -> Plan | NoPlan | None:
+        """`learnt`: with races learnt, a shorter search: where none but a plan losing a race exists, a whole
+        budget spent showing it at every request would be most of a run (and the symbolic member, which knows
+        no learnt race, is left out)."""
+        if not learnt:
+            return self.core.solve(request)
+        budget = self.core.budget
+        budget = dataclasses.replace(budget, first_expansions=max(1, budget.first_expansions // LEARNT_SEARCH_SHARE),
+                                     symbolic_layers=0)
+        result, note = solve_goals(self.core.planner, request, budget)
+        if note is not None:
+            self.core.events.log.emit(note)
+        return result
 
     def _estimate(self) -> None:
         """The predicted finish and the bound of the plan just taken (what is left of it, from now)."""

@@ -18,6 +18,7 @@ reading a written variable).
 
 from __future__ import annotations
 
+import contextlib
 import operator
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -130,9 +131,20 @@ class TimedRaces:
 
     def __init__(self) -> None:
         self._due_before: dict[int, tuple[CompiledTransition, ...]] = {}  # victim number -> effects
+        self.suspended = False  # planning as if none were known (`suspended_while`)
 
     def __bool__(self) -> bool:
-        return bool(self._due_before)
+        return bool(self._due_before) and not self.suspended
+
+    @contextlib.contextmanager
+    def suspended_while(self) -> Iterator[None]:
+        """Plan as if no race were known: when none but a plan that loses one reaches the goals, that plan is
+        what the livelock watch (controller/livelock.py) sees fail and names."""
+        self.suspended = True
+        try:
+            yield
+        finally:
+            self.suspended = False
 
     def forbid(self, victim: CompiledTransition, due: CompiledTransition) -> bool:
         """Forbid `victim` while `due` is enabled; False if it already was."""
@@ -144,7 +156,7 @@ class TimedRaces:
 
     def outrun(self, state: State, t: CompiledTransition) -> bool:
         effects = self._due_before.get(t.number)
-        return effects is not None and any(e.guard(state) for e in effects)
+        return effects is not None and not self.suspended and any(e.guard(state) for e in effects)
 
 
 @dataclass(frozen=True)
