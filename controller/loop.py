@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 
 from common.model import Duration, OperationState, TransitionKind, Value
 from common.model.durations import effect_owner
-from common.resources import durations_of
 from common.wire.ctl import (
     ConsoleEvent,
     ConsoleReply,
@@ -88,12 +87,12 @@ class ControlLoop:
                  durations: Mapping[str, Duration] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
         `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
-        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval
-        (default: the model's), what plans are checked in time against before use (controller/timed_check.py)."""
+        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval, what
+        plans are checked in time against before use (controller/timed_check.py; None: not checked; the check
+        runs in the caller's thread, seconds for a plan of hundreds of steps: in process and in replay, not yet
+        in the live controller's event loop)."""
         self.core = core
-        if durations is None:
-            durations = {e.resource: e.duration for e in durations_of(core.model).entries}
-        self.timed = TimedCheck(core.compiled, durations)
+        self.timed = None if durations is None else TimedCheck(core.compiled, durations)
         self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
         self.cycle = CycleRecord([r.name for r in core.model.resources])
@@ -243,6 +242,8 @@ class ControlLoop:
         return taken
 
     def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
+        if self.timed is None:
+            return None
         goals = {name: self.core.model.operation_by_name[name].goal for name in plan.goals
                  if name in self.core.model.operation_by_name}
         planner, disabled = self.core.planner, request.disabled
