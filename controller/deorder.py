@@ -21,7 +21,8 @@ so that the operator mounts the filters while the robot tightens the bolts. Step
 Every dependency points to an earlier step of the sequence, so the order is acyclic. `trace` keeps
 the former rule (a step waits for every earlier step it shares a variable with, and a command for
 every earlier reader of its device): the engine falls back on it for a step whose guard does not hold
-(see engine.py), and the cycle benchmark runs it as "before".
+(see engine.py), and the cycle benchmark runs it as "before". `Execution.SEQUENCE` waits for every earlier
+step: a plan that a timing of its effects breaks in the other two orders (controller/timed_check.py) runs so.
 """
 
 from __future__ import annotations
