@@ -9,6 +9,7 @@ sends what changed. Every decision and note goes into its event log (controller/
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -374,6 +375,9 @@ class ControlCore:
         return True
 
     def _follow(self, plan: Plan) -> None:
+        if plan.execution is None and self.progress is not None and self.progress.plan.execution is not None:
+            # The rest of the plan under way, kept: it runs in the order it was checked in (controller/timed_check.py).
+            plan = dataclasses.replace(plan, execution=self.progress.plan.execution)
         # What last set each device going is kept from plan to plan, so that a lost effect names its cause.
         self.progress = PlanProgress(self.compiled, plan, self._sent, self.engine.execution)
 

@@ -21,12 +21,12 @@ so that the operator mounts the filters while the robot tightens the bolts. Step
 Every dependency points to an earlier step of the sequence, so the order is acyclic. `trace` keeps
 the former rule (a step waits for every earlier step it shares a variable with, and a command for
 every earlier reader of its device): the engine falls back on it for a step whose guard does not hold
-(see engine.py), and the cycle benchmark runs it as "before".
+(see engine.py), and the cycle benchmark runs it as "before". `Execution.SEQUENCE` waits for every earlier
+step: a plan that a timing of its effects breaks in the other two orders (controller/timed_check.py) runs so.
 """
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -35,19 +35,9 @@ from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.predicates import Ref
 
 from .planner import Plan
+from .planner.plans import Execution
 
-
-class Execution(enum.Enum):
-    """How a plan's steps wait for each other."""
-
-    # Causal links and threats: the operator works while the robot does. Not the default yet: a plan may still
-    # count on an enabled effect waiting for it (the nutrunner's reset while a slow operator confirms pipe 1:
-    # the planner's shortest plan records pipe 2 on pipe 1's torque), and dispatched this early such a plan
-    # is left at the same place again and again until the livelock watch gives up. Plans checked against
-    # every timing of their effects (issue 21) make it safe; until then it is selectable (in process,
-    # tests/bench/bench_cycle.py).
-    PARTIAL_ORDER = "partial-order"
-    TRACE = "trace"  # every earlier step sharing a variable, a command every earlier reader of its device
+__all__ = ["Execution", "Ordering", "copied_reads", "order"]
 
 
 @dataclass(frozen=True)
@@ -91,6 +81,9 @@ def order(compiled: CompiledModel, plan: Plan, execution: Execution = Execution.
     trace, prior_writers, observers_before = _trace_order(compiled, transitions)
     if execution is Execution.TRACE:
         return Ordering(trace, trace, trace, prior_writers, observers_before)
+    if execution is Execution.SEQUENCE:
+        sequence = tuple(t | {j - 1} if j else t for j, t in enumerate(trace))
+        return Ordering(sequence, trace, trace, prior_writers, observers_before)
     states = plan.states
     writers: dict[int, list[int]] = {}  # variable -> the steps writing it, in plan order
     for j, t in enumerate(transitions):

@@ -70,10 +70,11 @@ class PlanProgress:
         """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
         `execution`: how steps wait for each other (the trace by default; controller/deorder.py says why)."""
         self.plan = plan
+        self.execution = plan.execution or execution  # a plan the timed check ran in a stricter order keeps it
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = [
             tuple((i, plan.states[j + 1][i]) for i in sorted(t.writes)) for j, t in enumerate(self.transitions)]
-        self.ordering = order(compiled, plan, execution)
+        self.ordering = order(compiled, plan, self.execution)
         self.depends = self.ordering.depends
         self.prior_writers = self.ordering.prior_writers
         # Earlier automatic and effect steps that must see the old values of what a step writes.

@@ -20,10 +20,11 @@ operations of the next order are requested.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from common.model import OperationState, TransitionKind, Value
+from common.model import Duration, OperationState, TransitionKind, Value
 from common.model.durations import effect_owner
 from common.wire.ctl import (
     ConsoleEvent,
@@ -45,12 +46,24 @@ from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predic
 from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
+from .planner.plans import Execution, PlanStep
+from .planner.policy import solve_goals
+from .planner.reuse import memory_key
 from .production.flow import OrderFlow
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
+from .timed_check import TimedCheck, TimingRefusal
 
 NOT_HELD: frozenset[str] = frozenset()
+# A plan the engine's own order breaks at some timing runs in the first stricter order none breaks.
+STRICTER = {
+    Execution.PARTIAL_ORDER: (Execution.TRACE, Execution.SEQUENCE),
+    Execution.TRACE: (Execution.SEQUENCE,),
+    Execution.SEQUENCE: (),
+}
+LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
+LEARNT_SEARCH_SHARE = 10  # of the satisficing member's budget, what a search with races learnt may spend
 
 
 @dataclass(frozen=True)
@@ -72,11 +85,17 @@ class Adopted:
 
 class ControlLoop:
     def __init__(self, core: ControlCore, recorder: RunRecorder, commanded: Iterable[str],
-                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None) -> None:
+                 clock: Callable[[], float], seconds: Mapping[str, float] | None = None,
+                 durations: Mapping[str, Duration] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
         `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
-        the model's), for the plans' predicted finish and bound."""
+        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval, what
+        plans are checked in time against before use (controller/timed_check.py; None: not checked; the check
+        runs in the caller's thread, seconds for a plan of hundreds of steps: in process and in replay, not yet
+        in the live controller's event loop)."""
         self.core = core
+        self.timed = None if durations is None else TimedCheck(core.compiled, durations)
+        self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
         self.cycle = CycleRecord([r.name for r in core.model.resources])
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
@@ -201,10 +220,13 @@ class ControlLoop:
         """The planner's note on an answer (a goal planned alone), logged before the answer is handed over."""
         self.core.events.log.emit(event)
 
-    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None) -> Adopted:
-        """The first answer to `request`."""
+    def adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None,
+              *, checked: bool = False) -> Adopted:
+        """The first answer to `request`; `checked`: a plan already checked in time (`solve`)."""
         log = self.core.events.log
         cursor = log.total
+        if isinstance(result, Plan) and not checked:
+            result, _ = self._in_time(request, result)
         taken = self.core.adopt(request, result)
         self.recorder.plan(request, result, taken=taken, note=note)
         if taken:
@@ -212,16 +234,96 @@ class ControlLoop:
         return Adopted(taken, log.since(cursor).events)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
-        """A shorter plan for `request`, after its first answer; True if taken."""
+        """A shorter plan for `request`, after its first answer; True if taken: only one the engine's own order
+        follows at every timing (a kept rest of it runs in the order of the plan under way)."""
+        refused = self._refusal(request, better, self.core.engine.execution)
+        if refused is not None:
+            self.refusals.append(refused)
+            self.recorder.plan(request, better, taken=False, improvement=True)
+            return False
         taken = self.core.improve(request, better)
         self.recorder.plan(request, better, taken=taken, improvement=True)
         if taken:
             self._estimate()
         return taken
 
+    def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
+        if self.timed is None:
+            return None
+        goals = {name: self.core.model.operation_by_name[name].goal for name in plan.goals
+                 if name in self.core.model.operation_by_name}
+        planner, disabled = self.core.planner, request.disabled
+
+        def revalidate(state: tuple[Value, ...], steps: Sequence[PlanStep]) -> Plan | None:
+            return planner.revalidate(state, steps, goals, disabled)
+
+        return self.timed.refusal(plan, disabled, execution, revalidate if goals else None)
+
+    def _in_time(self, request: PlanRequest, plan: Plan) -> tuple[Plan, TimingRefusal | None]:
+        """The plan, to run in the engine's order if no timing of its effects breaks it there, else in the first
+        stricter order none breaks (the nutrunner started only once the operator is told to tighten pipe 2);
+        with the refusal when every order is broken (the plan itself counts on an effect waiting)."""
+        own = self.core.engine.execution
+        refused = self._refusal(request, plan, own)
+        if refused is None:
+            return plan, None
+        self.refusals.append(refused)
+        for stricter in STRICTER[own]:
+            again = self._refusal(request, plan, stricter)
+            if again is None:
+                return dataclasses.replace(plan, execution=stricter), None
+            self.refusals.append(again)
+            refused = again
+        return dataclasses.replace(plan, execution=Execution.SEQUENCE), refused
+
+    def _learn(self, refused: TimingRefusal, request: PlanRequest) -> bool:
+        """Forbid the race a refused plan lost for the planning to come; False if nothing new is learnt."""
+        compiled = self.core.compiled
+        victim, due = compiled.by_name.get(refused.transition), compiled.by_name.get(refused.effect)
+        if victim is None or due is None or victim.kind is TransitionKind.AUTOMATIC:
+            return False
+        planner = self.core.planner
+        if not planner.timed_races.forbid(victim, due):
+            return False
+        planner.memory.forget(memory_key(request.goals, request.disabled))  # it remembers the refused plan
+        return True
+
     def solve(self, request: PlanRequest) -> Adopted:
-        """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds)."""
-        return self.adopt(request, self.core.solve(request))
+        """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds). A plan that
+        every order breaks in time teaches the planner the race it lost, and is planned again without it
+        (`LEARN_PER_REQUEST` times at most); then the strictest order runs it, the livelock watch the last line."""
+        races = self.core.planner.timed_races
+        result = self._solve(request, learnt=bool(races))
+        for _ in range(LEARN_PER_REQUEST + 1):
+            if isinstance(result, NoPlan) and races:
+                # No plan wins every race learnt: the one that loses one is all there is. It runs, fails, and the
+                # livelock watch names the effect it lost, as it did before plans were checked in time.
+                with races.suspended_while():
+                    result = self.core.solve(request)
+                if isinstance(result, Plan):
+                    result, _ = self._in_time(request, result)
+                    return self.adopt(request, result, checked=True)
+            if not isinstance(result, Plan):
+                break
+            checked, refused = self._in_time(request, result)
+            if refused is None or not self._learn(refused, request):
+                return self.adopt(request, checked, checked=True)
+            result = self._solve(request, learnt=True)
+        return self.adopt(request, result)
+
+    def _solve(self, request: PlanRequest, *, learnt: bool) -> Plan | NoPlan | None:
+        """`learnt`: with races learnt, a shorter search: where none but a plan losing a race exists, a whole
+        budget spent showing it at every request would be most of a run (and the symbolic member, which knows
+        no learnt race, is left out)."""
+        if not learnt:
+            return self.core.solve(request)
+        budget = self.core.budget
+        budget = dataclasses.replace(budget, first_expansions=max(1, budget.first_expansions // LEARNT_SEARCH_SHARE),
+                                     symbolic_layers=0)
+        result, note = solve_goals(self.core.planner, request, budget)
+        if note is not None:
+            self.core.events.log.emit(note)
+        return result
 
     def _estimate(self) -> None:
         """The predicted finish and the bound of the plan just taken (what is left of it, from now)."""

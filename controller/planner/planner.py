@@ -25,7 +25,7 @@ from .plans import NoPlan, Plan, PlanStats, PlanStep, moves_of
 from .portfolio import Budget, PortfolioRun
 from .relaxed import RelaxedModel
 from .reuse import PlanMemory
-from .steps import Move, RaceCheck, StateTest, StepSystem, stable_goal
+from .steps import Move, RaceCheck, StateTest, StepSystem, TimedRaces, stable_goal
 from .stopping import StopTest
 from .symbolic import SymbolicPlanner
 from .validate import PlanInvalid, check_plan, plan_from_moves
@@ -63,6 +63,7 @@ class Planner:
         # Built once per set of disabled resources (20 ms on the reference station), shared by the search
         # and `revalidate`; a dict read or write is atomic, so the lock-free `revalidate` may use it.
         self._races: dict[frozenset[str], RaceCheck] = {}
+        self.timed_races = TimedRaces()  # what plans refused in time taught (controller/loop.py)
         self._relaxed: dict[frozenset[str], RelaxedModel] = {}
         self._symbolic: dict[frozenset[str], SymbolicPlanner] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
@@ -73,7 +74,7 @@ class Planner:
     def race_check(self, disabled: frozenset[str]) -> RaceCheck:
         race = self._races.get(disabled)
         if race is None:
-            race = self._races[disabled] = RaceCheck(self.compiled, disabled)
+            race = self._races[disabled] = RaceCheck(self.compiled, disabled, self.timed_races)
         return race
 
     def step_system(self, disabled: frozenset[str]) -> StepSystem:

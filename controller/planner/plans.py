@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -11,6 +12,18 @@ from common.model.compiled import State
 
 if TYPE_CHECKING:
     from common.model.compiled import CompiledModel
+
+
+class Execution(enum.Enum):
+    """How a plan's steps wait for each other (controller/deorder.py)."""
+
+    # Causal links and threats: the operator works while the robot does. A plan that counts on an enabled effect
+    # waiting for it (the nutrunner's reset while a slow operator confirms pipe 1: the shortest plan records
+    # pipe 2 on pipe 1's torque) is left at the same place again and again when dispatched this early: plans are
+    # checked in time before use (controller/timed_check.py), and one this order breaks runs in a stricter one.
+    PARTIAL_ORDER = "partial-order"
+    TRACE = "trace"  # every earlier step sharing a variable, a command every earlier reader of its device
+    SEQUENCE = "sequence"  # every earlier step: the plan as the planner wrote it, one step after another
 
 
 @dataclass(frozen=True)
@@ -60,6 +73,8 @@ class Plan:
     states: tuple[State, ...]  # len(steps) + 1; states[0] is the start, states[-1] satisfies the goals
     goals: tuple[str, ...]
     stats: PlanStats = field(default_factory=lambda: PlanStats("none"), compare=False)
+    # How the engine dispatches it, when the timed check (controller/timed_check.py) chose; None: the engine's own.
+    execution: Execution | None = field(default=None, compare=False)
 
     def explain(self, compiled: CompiledModel, synthesized: bool = False) -> str:
         """Numbered steps with guards and the variables each step changed, one per line; the synthesized

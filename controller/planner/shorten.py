@@ -69,7 +69,8 @@ def eliminate(system: StepSystem, moves: list[Move], start: State, is_goal: Call
             due = system.first_automatic(state)
             if due is not None and due is not t:
                 return None  # an automatic would fire first: dropping the step broke the chain
-            if not t.guard(state) or (t.kind is TransitionKind.DELIBERATE and race.races(state, t)):
+            if (not t.guard(state) or (t.kind is TransitionKind.DELIBERATE and race.races(state, t))
+                    or (t.kind is not TransitionKind.AUTOMATIC and race.outrun(state, t))):
                 skipped += 1
                 if skipped > ENOUGH_SKIPPED:
                     return None

@@ -18,6 +18,7 @@ reading a written variable).
 
 from __future__ import annotations
 
+import contextlib
 import operator
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -70,7 +71,10 @@ class RaceCheck:
     predicted for later (controller/engine.py holds the command until that effect happened).
     """
 
-    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset()) -> None:
+    def __init__(self, compiled: CompiledModel, disabled: frozenset[str] = frozenset(),
+                 timed_races: TimedRaces | None = None) -> None:
+        """`timed_races`: the races the timed check found (shared by every set of disabled resources)."""
+        self.timed_races = timed_races if timed_races is not None else TimedRaces()
         effects = [e for e in compiled.effects if not (e.resources & disabled)]
         self._watch: dict[int, RacePairs] = {}
         # The answer depends only on the state after t on the variables the pairs' guards and outcomes
@@ -104,6 +108,11 @@ class RaceCheck:
             known = self._known[key] = any(races_after(after, pairs))
         return known
 
+    def outrun(self, state: State, t: CompiledTransition) -> bool:
+        """Step `t` (not automatic) in `state` would come after an effect due there that the timed check saw
+        take its condition away first (`TimedRaces`)."""
+        return self.timed_races.outrun(state, t)
+
     def overtaking(self, state: State, t: CompiledTransition) -> list[Race]:
         """The effects enabled in `state` that an effect started by `t` would disable, were it first."""
         pairs = self._watch.get(t.number)
@@ -111,6 +120,43 @@ class RaceCheck:
             return []
         return [race for race in races_after(t.outcomes[0](state), pairs)
                 if race.started_disables_due and race.due.guard(state)]
+
+
+class TimedRaces:
+    """Races a plan lost in time (controller/timed_check.py): step `victim` counted on effect `due`, enabled
+    before it, waiting past it; the devices do not wait, and the effect came first. Planning on, `victim` is
+    not taken while `due` is enabled: the plan that waits for the effect (the vacuum kept on until the feeder's
+    sensor has registered; the nutrunner's reset before the operator is told to tighten pipe 2) is found instead
+    of the same one again. Learned from the plans refused while the station runs; bounded by the model's size."""
+
+    def __init__(self) -> None:
+        self._due_before: dict[int, tuple[CompiledTransition, ...]] = {}  # victim number -> effects
+        self.suspended = False  # planning as if none were known (`suspended_while`)
+
+    def __bool__(self) -> bool:
+        return bool(self._due_before) and not self.suspended
+
+    @contextlib.contextmanager
+    def suspended_while(self) -> Iterator[None]:
+        """Plan as if no race were known: when none but a plan that loses one reaches the goals, that plan is
+        what the livelock watch (controller/livelock.py) sees fail and names."""
+        self.suspended = True
+        try:
+            yield
+        finally:
+            self.suspended = False
+
+    def forbid(self, victim: CompiledTransition, due: CompiledTransition) -> bool:
+        """Forbid `victim` while `due` is enabled; False if it already was."""
+        known = self._due_before.get(victim.number, ())
+        if due in known:
+            return False
+        self._due_before[victim.number] = (*known, due)
+        return True
+
+    def outrun(self, state: State, t: CompiledTransition) -> bool:
+        effects = self._due_before.get(t.number)
+        return effects is not None and not self.suspended and any(e.guard(state) for e in effects)
 
 
 @dataclass(frozen=True)
@@ -237,8 +283,11 @@ class StepSystem:
         """Macro-steps from a stable state (no automatic transition enabled)."""
         result = []
         chain, races = self.chain, self.race.races
+        outrun = self.race.outrun if self.race.timed_races else None
         for t, o in self.enabled_moves(state):
             if t.kind is TransitionKind.DELIBERATE and races(state, t):
+                continue
+            if outrun is not None and outrun(state, t):
                 continue
             found = chain(t.outcomes[o](state), [(t.number, o)], t.writes, goal, forbidden)
             if found is not None:

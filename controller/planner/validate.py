@@ -113,6 +113,8 @@ def check_plan(
             raise PlanInvalid(index, f"the guard of {t.name} does not hold: {compiled.guard_of(t.source)}")
         if t.kind is TransitionKind.DELIBERATE and race.races(state, t):
             raise PlanInvalid(index, f"{t.name} starts an effect that an effect already due would overtake")
+        if t.kind is not TransitionKind.AUTOMATIC and race.outrun(state, t):
+            raise PlanInvalid(index, f"{t.name} counts on an effect due that came first in time before")
         state = t.outcomes[step.outcome](state)
         if plan.states[index + 1] != state:
             raise PlanInvalid(index, "the recorded state after the step differs from the simulated one")

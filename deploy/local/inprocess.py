@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from common.config.hubs_toml import StationConfig
 from common.config.production import ProductionPlan
 from common.model import Duration, Model, OperationState
+from common.model.durations import as_duration
+from common.resources import durations_of
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.cycle import CycleReport, effect_seconds
 from controller.deorder import Execution
@@ -91,8 +93,9 @@ def run_in_process(
     clock = VirtualClock()
     core = stack.control_core(clock, budget=budget)
     core.engine.execution = execution  # the partial order is selectable here (deorder.py)
+    table = durations_of(model, {r: as_duration(d) for r, d in (delays or {}).items()})
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
-                       effect_seconds(model, delays))
+                       effect_seconds(model, delays), {e.resource: e.duration for e in table.entries})
     flow = None
     if production is None:
         loop.request([op.name for op in model.operations])

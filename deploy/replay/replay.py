@@ -31,6 +31,7 @@ import msgspec
 
 from common.model import Model
 from common.model.compiled import CompiledModel
+from common.resources import durations_of
 from common.stations import load_model
 from controller.control import ControlCore, PlanRequest
 from controller.loop import ControlLoop
@@ -148,8 +149,11 @@ class Replayer:
         self.sink = ListSink()
         # The live controller commands the resources of its hubs.toml: those the recording saw commanded are
         # a subset of the model's, and a resource nobody commands has no command to compare.
+        # A run in process checked its plans in time (controller/timed_check.py) against the model's durations.
+        durations = ({e.resource: e.duration for e in durations_of(self.model).entries}
+                     if meta.mode == RunMode.IN_PROCESS else None)
         self.loop = ControlLoop(self.core, RunRecorder(self.core, self.clock, self.sink),
-                                (r.name for r in self.model.resources), self.clock)
+                                (r.name for r in self.model.resources), self.clock, durations=durations)
         self.loop.request(meta.requested)
         self.requests = self.loop.requests()
         self.unhealthy: dict[str, str] = {}

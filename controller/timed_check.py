@@ -1,0 +1,246 @@
+"""Plans checked in time before use (issue 21, item 2; DESIGN.md §4).
+
+A plan is a sequence the planner found without time: it may count on an enabled effect waiting for it
+(the nutrunner's reset while a slow operator confirms pipe 1, so that pipe 2 is recorded on pipe 1's
+torque). The devices do not wait. `TimedCheck` runs the plan as the engine would dispatch it
+(controller/engine.py, the same `Engine` and `PlanProgress`, with the plan's `Execution`) against the
+emulator's semantics (hubs/emulator.py: an effect is scheduled when its guard starts to hold, fires
+after its duration unless its guard failed meanwhile, with no regard for the plan), in virtual time, at
+the corners of the effects' intervals: every effect at its earliest, every one at its latest, and each
+resource's effects at one end while every other's are at the other. Those are the timings that matter:
+an effect due while a later step takes its condition away comes out at one of them.
+
+A plan the engine would not follow to its end at one of them (it leaves the plan, a step can no longer
+fire, a held step waits too long, or nothing more can happen) is refused with a `TimingRefusal` that
+names the effect whose timing broke it, the plan step concerned, and the timing.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+from common.model import Duration
+from common.model.compiled import CompiledModel, CompiledTransition, State
+from common.model.durations import effect_owner
+from common.wire.ctl import ReplanReason
+
+from .deorder import Execution
+from .engine import Engine, PlanProgress, TickResult
+from .planner import Plan
+from .planner.plans import PlanStep
+
+TICKS_AT_ONCE = 100  # engine ticks at one instant before the devices get their turn (as deploy/local/inprocess.py)
+MAX_EVENTS = 20_000  # instants simulated before a plan is given up as never ending
+MAX_KEPT = 200  # plans kept from a state they did not predict (`Revalidate`) in one simulation
+
+# The rest of a plan replayed from a state it did not predict (the controller's `Planner.revalidate` for the
+# plan's goals): the plan to go on with, or None. The live controller keeps a plan so when devices change
+# what no step waits for (the camera sees the operator step out); the simulation does the same.
+Revalidate = Callable[[State, Sequence[PlanStep]], Plan | None]
+
+
+class TimingFault(enum.Enum):
+    """How a plan failed at a timing."""
+
+    LEFT_PLAN = "the state left the plan"  # an effect came before a step that needed what it changed
+    STEP_BLOCKED = "a step can no longer fire"
+    HOLD_EXPIRED = "a step held for a due effect waited longer than the effect takes"
+    STUCK = "nothing more can happen"  # the plan waits for an effect that is not enabled
+    GOALS_NOT_REACHED = "the plan ends but its goals do not hold"
+
+
+_FAULTS = {
+    ReplanReason.LEFT_PLAN: TimingFault.LEFT_PLAN,
+    ReplanReason.STEP_BLOCKED: TimingFault.STEP_BLOCKED,
+    ReplanReason.RACE_HOLD_EXPIRED: TimingFault.HOLD_EXPIRED,
+}
+
+
+@dataclass(frozen=True)
+class Timing:
+    """One corner of the effects' intervals: the seconds each effect takes, by transition name."""
+
+    name: str  # "every effect at its earliest", "human's effects at their latest, the others' at their earliest"
+    seconds: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class TimingRefusal:
+    """Why a plan is refused: at `timing`, effect `effect` broke plan step `step` (`transition`)."""
+
+    fault: TimingFault
+    effect: str  # the effect whose timing broke the plan ("" when none is to blame: a step blocked, stuck)
+    step: int  # the plan step that could not be followed (its index in the plan)
+    transition: str  # that step's transition
+    timing: str  # Timing.name
+    at: float  # station seconds after the plan's start
+    detail: str  # what the engine said
+
+    @property
+    def text(self) -> str:
+        blame = f"{self.effect} came first: " if self.effect else ""
+        return (f"{blame}step {self.step} {self.transition}: {self.fault.value} at {self.at:.2f} s "
+                f"with {self.timing} ({self.detail})")
+
+
+def corner_timings(compiled: CompiledModel, durations: Mapping[str, Duration]) -> list[Timing]:
+    """The timings a plan is checked at: all earliest, all latest, and each resource with an interval at one
+    end while the others are at the other. Fixed durations give one timing."""
+    owner = {t.name: effect_owner(t.source) for t in compiled.effects if t.writes}
+
+    def seconds(pick: Callable[[str], bool]) -> dict[str, float]:
+        """`pick(resource)`: True for its earliest."""
+        return {name: durations[r].min_s if pick(r) else durations[r].max_s for name, r in owner.items()}
+
+    timings = [Timing("every effect at its earliest", seconds(lambda _r: True)),
+               Timing("every effect at its latest", seconds(lambda _r: False))]
+    varying = sorted({r for r in owner.values() if not durations[r].is_fixed})
+    for r in varying:
+        timings.append(Timing(f"{r}'s effects at their earliest, the others' at their latest",
+                              seconds(lambda other, r=r: other == r)))  # type: ignore[misc]
+        timings.append(Timing(f"{r}'s effects at their latest, the others' at their earliest",
+                              seconds(lambda other, r=r: other != r)))  # type: ignore[misc]
+    unique: dict[tuple[tuple[str, float], ...], Timing] = {}
+    for timing in timings:
+        unique.setdefault(tuple(sorted(timing.seconds.items())), timing)
+    return list(unique.values())
+
+
+class _Devices:
+    """The emulator's semantics on compiled states: an effect fires its duration after its guard began to
+    hold, unless the guard failed meanwhile. The outcome is the one the plan's next step of it expects."""
+
+    def __init__(self, effects: tuple[CompiledTransition, ...], seconds: Mapping[str, float]) -> None:
+        self.effects = effects
+        self.seconds = seconds
+        self.due: dict[int, float] = {}  # effect number -> when it fires
+
+    def step(self, state: State, now: float, outcome_of: Callable[[CompiledTransition], int]
+             ) -> tuple[State, list[CompiledTransition]]:
+        fired: list[CompiledTransition] = []
+        for t in self.effects:
+            if not t.guard(state):
+                self.due.pop(t.number, None)
+                continue
+            due = self.due.get(t.number)
+            if due is None:
+                self.due[t.number] = now + self.seconds.get(t.name, 0.0)
+            elif due <= now:
+                del self.due[t.number]
+                state = t.outcomes[outcome_of(t)](state)
+                fired.append(t)
+        return state, fired
+
+    def next_due(self) -> float | None:
+        return min(self.due.values(), default=None)
+
+
+class TimedCheck:
+    """Checks plans against the corner timings of one station's effect durations."""
+
+    def __init__(self, compiled: CompiledModel, durations: Mapping[str, Duration],
+                 execution: Execution = Execution.TRACE) -> None:
+        """`durations`: each resource's interval (common/model/durations.py's table, by resource)."""
+        self.compiled = compiled
+        self.execution = execution
+        self.timings = corner_timings(compiled, durations)
+        self.delays = {name: max(t.seconds.get(name, 0.0) for t in self.timings)
+                       for name in (e.name for e in compiled.effects)}
+        self._engine = Engine(compiled, self.delays, execution)
+
+    def refusal(self, plan: Plan, disabled: frozenset[str] = frozenset(), execution: Execution | None = None,
+                revalidate: Revalidate | None = None) -> TimingRefusal | None:
+        """Why the engine would not follow `plan` at one of the timings (None: it would at every one).
+        `execution`: how its steps wait for each other (default: this check's); `revalidate`: how the
+        controller keeps a plan when the state leaves it (None: it does not)."""
+        if not plan.steps:
+            return None
+        self._engine.execution = execution or self.execution
+        for timing in self.timings:
+            refused = self._run(plan, disabled, timing, revalidate)
+            if refused is not None:
+                return refused
+        return None
+
+    def _run(self, plan: Plan, disabled: frozenset[str], timing: Timing,
+             revalidate: Revalidate | None) -> TimingRefusal | None:
+        compiled = self.compiled
+        engine = self._engine
+        progress = PlanProgress(compiled, plan, execution=engine.execution)
+        effects = tuple(e for e in compiled.effects if e.writes and not (e.resources & disabled))
+        devices = _Devices(effects, timing.seconds)
+        state = plan.states[0]
+        now = 0.0
+        last_fired: list[CompiledTransition] = []
+        kept = 0
+
+        def outcome_of(t: CompiledTransition) -> int:
+            step = next((j for j in progress.pending() if progress.transitions[j] is t), None)
+            return 0 if step is None else plan.steps[step].outcome
+
+        for _ in range(MAX_EVENTS):
+            for _tick in range(TICKS_AT_ONCE):
+                before = state
+                result = engine.tick(state, progress=progress, disabled=disabled, now=now)
+                state = result.state
+                if result.replan is not None:
+                    again = None
+                    if (revalidate is not None and kept < MAX_KEPT
+                            and result.replan.reason is ReplanReason.LEFT_PLAN):
+                        kept += 1
+                        again = revalidate(state, [progress.plan.steps[j] for j in sorted(progress.pending())])
+                    if again is None:
+                        return self._refused(progress, result, last_fired, timing, now)
+                    progress = PlanProgress(compiled, again, progress.sent, engine.execution)
+                    plan = again
+                    continue
+                if progress.complete or state == before:
+                    break
+            if progress.complete:
+                return None
+            state, fired = devices.step(state, now, outcome_of)
+            if fired:
+                last_fired = fired
+                continue
+            due = devices.next_due()
+            if due is None:
+                j = progress.next_step()
+                assert j is not None  # the plan is not complete
+                return TimingRefusal(TimingFault.STUCK, "", j, plan.steps[j].transition, timing.name, now,
+                                     f"waiting for {progress.never_text(compiled, j)}")
+            now = max(now, due)
+        j = progress.next_step() or 0
+        return TimingRefusal(TimingFault.STUCK, "", j, plan.steps[j].transition, timing.name, now,
+                             f"no end after {MAX_EVENTS} instants")
+
+    def _refused(self, progress: PlanProgress, result: TickResult, last_fired: list[CompiledTransition],
+                 timing: Timing, now: float) -> TimingRefusal:
+        """The refusal for the engine's replan: the effect to blame and the step it broke."""
+        assert result.replan is not None
+        fault = _FAULTS.get(result.replan.reason, TimingFault.LEFT_PLAN)
+        effect = result.lost.effect if result.lost is not None else ""
+        victim: int | None = None
+        if not effect and fault is TimingFault.LEFT_PLAN:
+            # The effect that just fired out of the plan's order, and the first pending step that needed what
+            # it changed (the tracking of pipe 2 that needed the nutrunner's torque the reset took away).
+            for e in last_fired:
+                changed = e.writes
+                reader = next((j for j in progress.pending()
+                               if progress.transitions[j] is not e and progress.transitions[j].reads & changed), None)
+                if reader is not None:
+                    effect, victim = e.name, reader
+                    break
+        if victim is None:
+            held = next((h for h in result.held), None)
+            if held is not None and fault is TimingFault.HOLD_EXPIRED:
+                victim = held.step
+            elif effect:
+                victim = next((j for j in progress.pending() if progress.transitions[j].name == effect), None)
+        if victim is None:
+            victim = progress.next_step() or 0
+        detail = result.replan.detail
+        if result.lost is not None:
+            detail = result.lost.text
+        return TimingRefusal(fault, effect, victim, progress.plan.steps[victim].transition, timing.name, now, detail)

@@ -1,0 +1,103 @@
+"""Plans checked in time before use (issue 21, item 2: controller/timed_check.py).
+
+A plan that counts on an enabled effect waiting for it is refused, naming the effect and the step; the controller
+then runs it in a stricter order, or teaches the planner the race and plans again. Stations that got stuck
+before: the timed random stations with a specification guarding their feeder's sensor (`WITH_GUARDED`), and the
+reference station with a slow operator in partial order.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from common.model import Duration
+from common.resources import durations_of
+from common.stations import load_model
+from controller.deorder import Execution
+from controller.planner import Plan
+from controller.planner.policy import VIRTUAL_BUDGET
+from controller.stack import ControllerStack, build_controller_stack
+from controller.timed_check import TimedCheck, TimingFault, corner_timings
+from deploy.local.inprocess import run_in_process
+from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
+from tests.timing_stations.feeder import build_model as build_feeder_station
+
+# The seeds whose stations got stuck in trace and in partial order before plans were checked in time.
+GUARDED_SEEDS = (25, 30, 60, 68, 157, 158, 167, 336)
+
+
+def _first_plan(seed: int) -> tuple[TimedCheck, Plan, ControllerStack]:
+    model, _ = build_random_timed_station_with_shape(seed, timings=WITH_GUARDED)
+    stack = build_controller_stack(model)
+    durations = {e.resource: e.duration for e in durations_of(model).entries}
+    goals = {op.name: op.goal for op in model.operations}
+    plan = stack.planner.plan(stack.compiled.initial(), goals, budget=VIRTUAL_BUDGET)  # as in process
+    assert isinstance(plan, Plan)
+    return TimedCheck(stack.compiled, durations), plan, stack
+
+
+def test_a_plan_counting_on_an_effect_waiting_is_refused_naming_the_effect_and_the_step() -> None:
+    check, plan, _ = _first_plan(60)
+    refused = check.refusal(plan)
+    assert refused is not None
+    # The plan switches the vacuum off before the feeder's sensor has seen the box taken: the release comes first.
+    assert refused.fault is TimingFault.LEFT_PLAN
+    assert refused.effect == "g1.release.executing.effect"
+    assert refused.transition == "f1.taken.executing.effect"
+    assert plan.steps[refused.step].transition == refused.transition
+    assert refused.effect in refused.text and refused.transition in refused.text
+
+
+def test_the_race_forbidden_the_planner_finds_a_plan_no_timing_breaks() -> None:
+    check, plan, stack = _first_plan(60)
+    refused = check.refusal(plan)
+    assert refused is not None
+    planner, compiled = stack.planner, stack.compiled
+    assert planner.timed_races.forbid(compiled.by_name[refused.transition], compiled.by_name[refused.effect])
+    goals = {op.name: op.goal for op in compiled.model.operations}
+    again = planner.plan(compiled.initial(), goals, budget=VIRTUAL_BUDGET)
+    assert isinstance(again, Plan)
+    assert check.refusal(again) is None
+
+
+def test_a_plan_the_devices_follow_is_not_refused_and_fixed_durations_give_one_timing() -> None:
+    model = build_feeder_station()
+    stack = build_controller_stack(model)
+    durations = {e.resource: Duration.fixed(e.duration.max_s) for e in durations_of(model).entries}
+    assert len(corner_timings(stack.compiled, durations)) == 1
+    check = TimedCheck(stack.compiled, durations)
+    plan = stack.planner.plan(stack.compiled.initial(), {op.name: op.goal for op in model.operations})
+    assert isinstance(plan, Plan)
+    assert check.refusal(plan) is None
+
+
+def test_an_interval_is_checked_at_both_ends_for_each_resource() -> None:
+    model, _ = build_random_timed_station_with_shape(60, timings=WITH_GUARDED)
+    stack = build_controller_stack(model)
+    durations = {e.resource: e.duration for e in durations_of(model).entries}
+    owners = {t.name: t.name.split(".", 1)[0] for t in stack.compiled.effects}
+    varying = sorted({r for r in owners.values() if not durations[r].is_fixed})
+    assert len(varying) >= 2
+    ends = [{r: {s for name, s in t.seconds.items() if owners[name] == r} for r in varying}
+            for t in corner_timings(stack.compiled, durations)]
+    for r in varying:
+        for other in varying:
+            if other != r:  # r early while `other` is late, and the other way round
+                assert any(e[r] == {durations[r].min_s} and e[other] == {durations[other].max_s} for e in ends)
+                assert any(e[r] == {durations[r].max_s} and e[other] == {durations[other].min_s} for e in ends)
+
+
+@pytest.mark.parametrize("execution", [Execution.TRACE, Execution.PARTIAL_ORDER])
+@pytest.mark.parametrize("seed", GUARDED_SEEDS)
+def test_guarded_timed_stations_complete(seed: int, execution: Execution) -> None:
+    model, shape = build_random_timed_station_with_shape(seed, timings=WITH_GUARDED)
+    summary = run_in_process(model, seed=seed, time_limit=300.0, execution=execution)
+    assert summary.finished, (shape.describe(), summary.reason, summary.log[-8:])
+
+
+@pytest.mark.slow
+def test_reference_station_with_a_slow_operator_completes_in_partial_order() -> None:
+    # Before: stuck at TightenPipe2, the shortest plan recording pipe 2 on pipe 1's torque (livelock after 20 plans).
+    summary = run_in_process(load_model(), seed=1, delays={"human": 30.0}, execution=Execution.PARTIAL_ORDER,
+                             time_limit=900.0)
+    assert summary.finished, (summary.reason, summary.log[-8:])
