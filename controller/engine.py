@@ -42,6 +42,7 @@ that the controller can name it if the same thing happens again and again.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -74,11 +75,7 @@ class PlanProgress:
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = [
             tuple((i, plan.states[j + 1][i]) for i in sorted(t.writes)) for j, t in enumerate(self.transitions)]
-        self.ordering = order(compiled, plan, self.execution)
-        self.depends = self.ordering.depends
-        self.prior_writers = self.ordering.prior_writers
-        # Earlier automatic and effect steps that must see the old values of what a step writes.
-        self.observers_before = self.ordering.observers_before
+        self.reorder(compiled, self.execution)
         relevant: set[int] = set()
         for t in self.transitions:
             relevant |= t.reads | t.writes
@@ -91,6 +88,18 @@ class PlanProgress:
         self.held_since: dict[int, float] = {}  # deliberate steps held for a due effect, since when
         self.due: dict[int, State] = {}  # effect steps next in line, the last state where their guard held
         self.sent: dict[str, str] = {} if sent is None else sent  # resource -> the last command or automatic on it
+
+    def reorder(self, compiled: CompiledModel, execution: Execution) -> None:
+        """Steps wait for each other in `execution` from now on (the live controller's planner process found
+        the plan under way safe in a looser order than the strictest it began in); what is done stays done."""
+        self.execution = execution
+        if self.plan.execution not in (None, execution):  # a kept rest of it runs in the same order
+            self.plan = dataclasses.replace(self.plan, execution=execution)
+        self.ordering = order(compiled, self.plan, execution)
+        self.depends = self.ordering.depends
+        self.prior_writers = self.ordering.prior_writers
+        # Earlier automatic and effect steps that must see the old values of what a step writes.
+        self.observers_before = self.ordering.observers_before
 
     @property
     def complete(self) -> bool:

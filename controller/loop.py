@@ -52,7 +52,7 @@ from .production.flow import OrderFlow
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
-from .timed_check import Revalidate, TimedCheck, TimingRefusal, learn_race, revalidation
+from .timed_check import STRICTEST, Revalidate, TimedCheck, TimingRefusal, Verdict, learn_race, revalidation
 
 NOT_HELD: frozenset[str] = frozenset()
 LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
@@ -240,6 +240,19 @@ class ControlLoop:
         if taken:
             self._estimate()
         return taken
+
+    def checked(self, request: PlanRequest, verdict: Verdict) -> bool:
+        """The live controller's planner process checked its first answer to `request` in time after sending it
+        (adopted meanwhile in the strictest order): the plan under way, or the rest of it kept, goes on in the
+        order the verdict allows. True if that is looser than the one it runs in."""
+        self.refusals.extend(verdict.refusals)
+        progress, allowed = self.core.progress, verdict.plan.execution
+        if (not verdict.passed or allowed is None or progress is None or request.generation != self.core.generation
+                or progress.execution is not STRICTEST or allowed is STRICTEST
+                or set(progress.plan.goals) != set(verdict.plan.goals)):
+            return False
+        progress.reorder(self.core.compiled, allowed)
+        return True
 
     def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
         if self.timed is None:
