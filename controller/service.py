@@ -43,6 +43,7 @@ from controller.recording.schema import RunMeta
 from controller.station_hold import StationHold
 
 from .commandpublisher import CommandPublisher
+from .cycle import effect_seconds
 from .ingest import StateIngest
 from .loop import ControlLoop
 from .loopmeter import LoopMeter
@@ -97,7 +98,9 @@ class ControllerService:
         sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
             record, station=config.station.name, model=config.station.model, config=config.path), model)
         self.recorder = RunRecorder(self.core, self.clock, sink)
-        self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance)
+        # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
+        self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,
+                                effect_seconds(model, config.delays))
         self.meter = LoopMeter()
         self.ingest = StateIngest(self.loop, self.keys, self.codecs, self.controller_id, self.watchdog,
                                   self.command_hold, self.meter, self._forged)
@@ -108,7 +111,7 @@ class ControllerService:
         self.planner_process = PlannerProcess(config.station.model, timing=self.timing()) if planner_process else None
         self.planning = PlanClient(self.loop, self.planner_process, self._dirty.set)
         self.status_publisher = StatusPublisher(config.station.name, self.controller_id, self.core, self.watchdog,
-                                                self.hubs_of, self.meter, self.orders)
+                                                self.hubs_of, self.meter, self.orders, self.loop.cycle)
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
 
     def timing(self) -> Timing:
