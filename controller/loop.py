@@ -247,12 +247,14 @@ class ControlLoop:
         order the verdict allows. True if that is looser than the one it runs in."""
         self.refusals.extend(verdict.refusals)
         progress, allowed = self.core.progress, verdict.plan.execution
-        if (not verdict.passed or allowed is None or progress is None or request.generation != self.core.generation
-                or progress.execution is not STRICTEST or allowed is STRICTEST
-                or set(progress.plan.goals) != set(verdict.plan.goals)):
-            return False
-        progress.reorder(self.core.compiled, allowed)
-        return True
+        loosened = not (not verdict.passed or allowed is None or progress is None
+                        or request.generation != self.core.generation or progress.execution is not STRICTEST
+                        or allowed is STRICTEST or set(progress.plan.goals) != set(verdict.plan.goals))
+        if loosened:
+            assert progress is not None and allowed is not None
+            progress.reorder(self.core.compiled, allowed)
+        self.recorder.plan(request, verdict.plan, taken=loosened, checked=True)
+        return loosened
 
     def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
         if self.timed is None:

@@ -90,7 +90,7 @@ class PlanClient:
             log.warning("the plan loses a race in every order (it runs step after step; the planner learns the "
                         "race for the next plans): %s", refused.text)
         elif self.loop.checked(request, verdict):
-            log.info("plan checked in time: it runs in %s", verdict.plan.execution)
+            log.info("plan checked in time: it runs in %s", verdict.plan.execution.value)
             self.wake()
 
     def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None) -> None:

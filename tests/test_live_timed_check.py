@@ -19,13 +19,18 @@ from controller.loop import ControlLoop
 from controller.planner import Plan
 from controller.planworker import Answer, Limits, PlannerProcess, Timing
 from controller.recording.hooks import RunRecorder, VirtualClock
+from controller.recording.reader import open_run
+from controller.recording.writer import RECORDING_DIR_ENV
 from controller.stack import build_controller_stack
 from controller.timed_check import STRICTEST, TimedCheck, Verdict
+from deploy.local.station import Options, run_station
+from deploy.replay.replay import Replayer
 from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
 from tests.timing_stations.feeder import build_model
 
 FEEDER = "tests.timing_stations.feeder:build_model"
 CONFIG = Path(__file__).parent / "timing_stations" / "hubs.toml"
+ROOT = Path(__file__).resolve().parent.parent
 GUARDED = "tests.test_live_timed_check:guarded_station"
 GUARDED_SEED = 60  # its first plan switches the vacuum off before the feeder's sensor saw the box taken
 
@@ -131,3 +136,27 @@ def test_the_verdict_lets_the_plan_under_way_run_in_the_order_it_allows() -> Non
     progress = core.progress
     assert progress.execution is Execution.PARTIAL_ORDER and progress.plan.execution is Execution.PARTIAL_ORDER
     assert any(loose < strict for loose, strict in zip(progress.depends, sequence_depends, strict=True))
+
+
+@pytest.mark.slow
+async def test_hubctl_up_checks_its_plans_in_time_and_ends_with_the_cycle_report(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The feeder station as processes over Zenoh: its controller's planner process checks the plan in time and
+    lets it run in the engine's order; `hubctl up` prints the cycle report at the end; the recording, verdict
+    included, replays to the same decisions."""
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path / "runs"))
+    lines: list[str] = []
+    code = await run_station(Options(config=str(CONFIG), speed=1.0, run_dir=tmp_path, time_limit=120.0),
+                             say=lines.append)
+    output = "\n".join(lines)
+    assert code == 0, output[-3000:]
+    report = next(i for i, line in enumerate(lines) if line.startswith("cycle "))
+    assert "bound" in lines[report] and "cycle/bound" in lines[report], output
+    assert {line.split()[0] for line in lines[report + 1:report + 4]} == {"r", "g", "f"}, output
+    controller_log = (tmp_path / "controller.log").read_text()
+    assert "plan checked in time: it runs in trace" in controller_log, controller_log[-3000:]
+    (recording,) = (tmp_path / "runs").glob("*.sqlite")
+    with open_run(recording) as run:
+        replayed = Replayer(run).replay()
+    assert replayed.same, str(replayed.divergence)
