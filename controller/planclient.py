@@ -89,7 +89,7 @@ class PlanClient:
         if refused is not None:
             log.warning("the plan loses a race in every order (it runs step after step; the planner learns the "
                         "race for the next plans): %s", refused.text)
-        elif self.loop.checked(request, verdict):
+        elif self.loop.checked(request, verdict) and verdict.plan.execution is not None:
             log.info("plan checked in time: it runs in %s", verdict.plan.execution.value)
             self.wake()
 
