@@ -22,7 +22,7 @@ from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.reader import open_run
 from controller.recording.writer import RECORDING_DIR_ENV
 from controller.stack import build_controller_stack
-from controller.timed_check import STRICTEST, TimedCheck, Verdict
+from controller.timed_check import STRICTEST, CheckStopped, TimedCheck, Verdict
 from deploy.local.station import Options, run_station
 from deploy.replay.replay import Replayer
 from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
@@ -160,3 +160,16 @@ async def test_hubctl_up_checks_its_plans_in_time_and_ends_with_the_cycle_report
     with open_run(recording) as run:
         replayed = Replayer(run).replay()
     assert replayed.same, str(replayed.divergence)
+
+
+def test_a_newer_request_stops_the_check_under_way() -> None:
+    """The planner process's check looks at the request pipe as it goes: a newer request ends it."""
+    model = guarded_station()
+    stack = build_controller_stack(model)
+    request = every_operation(model, 1)
+    plan = stack.planner.plan(request.start, dict(request.goals))
+    assert isinstance(plan, Plan)
+    check = TimedCheck(stack.compiled, station_timing(model).durations)
+    with pytest.raises(CheckStopped):
+        check.verdict(plan, stop=lambda: True)
+    assert check.verdict(plan, stop=lambda: False).plan.steps == plan.steps  # not stopped, it has its verdict
