@@ -355,6 +355,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     register_run_commands(sub)
     register_orders_command(sub)
+
+    from .export_cli import register_export_command
+
+    register_export_command(sub, DEFAULT_MODEL)
     return parser
 
 
