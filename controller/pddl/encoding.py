@@ -53,8 +53,12 @@ class Action:
 class Names:
     """PDDL identifiers (letters, digits, `-`, `_`; case-insensitive), unique across one task."""
 
+    RESERVED = frozenset({"and", "or", "not", "when", "imply", "exists", "forall", "either", "define", "domain",
+                          "problem", "object", "number", "at", "over", "start", "end", "all", "increase",
+                          "decrease", "assign", "total-cost", "preference", "always", "sometime", "within"})
+
     def __init__(self) -> None:
-        self.taken: set[str] = set()
+        self.taken: set[str] = set(self.RESERVED)
 
     def make(self, text: str) -> str:
         base = re.sub(r"[^a-z0-9_-]+", "-", text.lower()).strip("-") or "x"

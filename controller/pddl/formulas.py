@@ -31,6 +31,14 @@ class Fact:
 
 
 @dataclass(frozen=True)
+class Other:
+    """The variable of `fact` has another value: one derived fact instead of a disjunction over the domain
+    each time (a robot's pose has tens of values, and synthesized guards say `pos != p` often)."""
+
+    fact: Fact
+
+
+@dataclass(frozen=True)
 class Named:
     """A formula under a name: a derived predicate where the output has them, else written in place."""
 
@@ -48,7 +56,7 @@ class AnyOf:
     items: tuple[Formula, ...]
 
 
-Formula = Fact | AllOf | AnyOf | Named
+Formula = Fact | Other | AllOf | AnyOf | Named
 ALWAYS = AllOf(())
 NEVER = AnyOf(())
 
@@ -89,6 +97,15 @@ class Facts:
         same = [v for v in self.values(path, where) if v == value and type(v) is type(value)]
         return Fact(path, same[0]) if same else NEVER
 
+    def other(self, fact: Formula) -> Formula:
+        """Not `fact`: for a variable of two values, the other value's fact."""
+        if not isinstance(fact, Fact):
+            return ALWAYS if fact == NEVER else NEVER
+        rest = [v for v in self.domains[fact.path] if Fact(fact.path, v) != fact]
+        if len(rest) == 1:
+            return Fact(fact.path, rest[0])
+        return Other(fact) if rest else NEVER
+
     def equal(self, left: str, right: str, where: str) -> Formula:
         common = [v for v in self.values(left, where) if v in self.values(right, where)]
         return any_of([all_of([Fact(left, v), Fact(right, v)]) for v in common])
@@ -110,15 +127,18 @@ class Facts:
             if not isinstance(p.value, bool | int | str):
                 raise Unexpressible(f"{where}: the predicate {p} compares with {p.value!r}, neither a value nor a "
                                     f"variable")
+            fact = self.is_value(p.path, p.value, where)
             if holds:
-                return self.is_value(p.path, p.value, where)
-            return any_of([self.is_value(p.path, v, where) for v in self.values(p.path, where)
-                           if not (v == p.value and type(v) is type(p.value))])
+                return fact
+            return ALWAYS if fact == NEVER else self.other(fact)
         if isinstance(p, In):
             chosen = [self.formula(Eq(p.path, v), where) for v in p.values]
             if positive:
                 return any_of(chosen)
-            return any_of([Fact(p.path, v) for v in self.values(p.path, where) if Fact(p.path, v) not in chosen])
+            rest = [Fact(p.path, v) for v in self.values(p.path, where) if Fact(p.path, v) not in chosen]
+            kept = [f for f in chosen if isinstance(f, Fact)]
+            # Not any of a few values: each another value; not any of many: one of the few left.
+            return all_of([self.other(f) for f in kept]) if len(kept) < len(rest) else any_of(list(rest))
         if isinstance(p, Not):
             return self.formula(p.operand, where, not positive)
         if isinstance(p, And | Or):

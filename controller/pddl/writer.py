@@ -18,7 +18,7 @@ from __future__ import annotations
 from enum import Enum
 
 from .encoding import Action, Condition, Effect, Task
-from .formulas import NEVER, AllOf, AnyOf, Fact, Named
+from .formulas import NEVER, AllOf, AnyOf, Fact, Named, Other
 
 NEVER_FACT = "never"  # a fact no state has: what an empty disjunction is
 
@@ -55,17 +55,25 @@ class Writer:
             return f"({self.task.facts[condition]})"
         if condition == NEVER:
             return f"({NEVER_FACT})"
+        if isinstance(condition, Other):
+            return f"(not ({self.task.facts[condition.fact]}))"
         connective = "and" if isinstance(condition, AllOf) else "or"
         return f"({connective} {' '.join(self.inline(i) for i in condition.items)})"
 
-    def derive(self, condition: Named | AnyOf) -> str:
+    def others(self, condition: Other) -> list[Fact]:
+        return [f for f in self.task.facts if f.path == condition.fact.path and f != condition.fact]
+
+    def derive(self, condition: Named | AnyOf | Other) -> str:
         name = self.derived.get(condition)
         if name is None:
-            if isinstance(condition, Named):
+            if isinstance(condition, Other):
+                name = self.task.names.make(f"not-{self.task.facts[condition.fact]}")
+                body = "(or " + " ".join(f"({self.task.facts[f]})" for f in self.others(condition)) + ")"
+            elif isinstance(condition, Named):
                 name = condition.name
                 body = conjunction(self.atoms(condition.formula))
             else:
-                name = self.task.names.make("or")
+                name = self.task.names.make("any")
                 body = "(or " + " ".join(conjunction(self.atoms(item)) for item in condition.items) + ")"
             self.derived[condition] = name
             self.rules.append(f"  (:derived ({name})\n    {body})")
@@ -83,8 +91,7 @@ class Writer:
         actions = [self.action(a) for a in self.task.actions]
         goal = conjunction([a for c in self.task.goal for a in self.atoms(c)])
         requirements = ":strips :disjunctive-preconditions :conditional-effects"
-        if self.flavour is Flavour.AXIOMS:
-            requirements += " :derived-predicates"
+        requirements += " :derived-predicates" if self.flavour is Flavour.AXIOMS else " :negative-preconditions"
         predicates = [f"({n})" for n in self.task.facts.values()]
         predicates += [f"({NEVER_FACT})"] + [f"({n})" for n in self.derived.values()]
         lines = [f"(define (domain {self.task.name})", f"  (:requirements {requirements})",
@@ -106,9 +113,9 @@ def conjunction(atoms: list[str]) -> str:
 
 def effect_text(task: Task, effect: Effect) -> str:
     parts = [f"({task.facts[f]})" for f in effect.adds] + [f"(not ({task.facts[f]}))" for f in effect.deletes]
-    body = parts[0] if len(parts) == 1 else "(and " + " ".join(parts) + ")"
     if not effect.when:
-        return body
+        return " ".join(parts)  # inside the action's (and ...)
+    body = parts[0] if len(parts) == 1 else "(and " + " ".join(parts) + ")"
     return f"(when {conjunction([f'({task.facts[f]})' for f in effect.when])} {body})"
 
 
