@@ -378,6 +378,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .line.cli import register_line_commands
 
     register_line_commands(sub)
+
+    from .export_cli import register_export_command
+
+    register_export_command(sub, DEFAULT_MODEL)
     return parser
 
 

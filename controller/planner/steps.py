@@ -95,6 +95,10 @@ class RaceCheck:
                 self._watch[t.number] = tuple(pairs)
                 self._relevant[t.number] = operator.itemgetter(*sorted(relevant))
 
+    def watched(self, t: CompiledTransition) -> RacePairs:
+        """The (effect t may start, its rivals) pairs `races` checks for deliberate `t` (the PDDL export needs them)."""
+        return self._watch.get(t.number, ())
+
     def races(self, state: State, t: CompiledTransition) -> bool:
         pairs = self._watch.get(t.number)
         if pairs is None:
