@@ -6,15 +6,17 @@ from __future__ import annotations
 import pytest
 
 from common.wire.ctl import OrderDone, ProductionInfo, ResourceHealthInfo, StatusMessage
-from common.wire.orders import Order
+from common.wire.orders import Order, ParameterValue
 from deploy.line.overview import UNREACHABLE_AFTER_S, Overview, StationState
 from deploy.line.up import Kill, LineOptions, run_line
 from tests.line_station.site import write_line
 
 
-def status(current: str | None, done: int = 0, cycles: tuple[float, ...] = (), sick: bool = False) -> StatusMessage:
+def status(current: str | None, done: int = 0, cycles: tuple[float, ...] = (), sick: bool = False,
+           carried: dict[str, ParameterValue] | None = None) -> StatusMessage:
     production = ProductionInfo(
-        current=None if current is None else Order(id=done + 1, product_id=current, variant="default"),
+        current=None if current is None else Order(id=done + 1, product_id=current, variant="default",
+                                                   carried=carried or {}),
         done=done, recent=[OrderDone(i, f"p{i}", "default", 0.0, c) for i, c in enumerate(cycles)])
     health = [ResourceHealthInfo("nr", "pi-tool", not sick, "stale" if sick else "")]
     return StatusMessage(station="s", controller="c", time=0.0, uptime=0.0, production=production, health=health)
@@ -34,6 +36,15 @@ def test_the_overview_says_state_product_cycle_health_and_unreachable():
     overview.take("s1", status("p2", 1, (4.5,)), now=later)
     assert overview.unreachable(later) == ["s2"]
     assert "UNHEALTHY nr" in rows["s2"].text()
+
+
+def test_the_overview_shows_the_state_the_current_product_carried_in():
+    overview = Overview(["s1", "s2"])
+    overview.take("s1", status("p1"), now=1.0)
+    overview.take("s2", status("p0", carried={"engine.bolt1_e": "tightened", "engine.bolt2_e": "tightened"}), now=1.0)
+    rows = {r.station: r for r in overview.rows(now=1.5)}
+    assert rows["s2"].carried == {"engine.bolt1_e": "tightened", "engine.bolt2_e": "tightened"}
+    assert rows["s2"].text().endswith("ok  carried 2 values") and "carried" not in rows["s1"].text()
 
 
 # Router r2 (station s2's) once a product left s1 (it restarts 5 s later); then the line controller and s2's

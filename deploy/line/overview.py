@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from common.wire.ctl import StatusMessage
+from common.wire.orders import ParameterValue
 
 UNREACHABLE_AFTER_S = 3.0
 
@@ -32,12 +33,15 @@ class StationRow:
     cycle_s: float | None  # the last finished order's cycle
     done: int  # orders the station finished
     unhealthy: tuple[str, ...]  # its unhealthy resources
+    # the current product's state as the previous station archived it (its order carries it)
+    carried: dict[str, ParameterValue] = field(default_factory=dict)
 
     def text(self) -> str:
         cycle = f"{self.cycle_s:5.1f} s" if self.cycle_s is not None else "    -  "
         health = "ok" if not self.unhealthy else "UNHEALTHY " + ", ".join(self.unhealthy)
+        carried = f"  carried {len(self.carried)} values" if self.carried else ""
         return f"  {self.station:<6} {self.state:<11} {self.product or '-':<22} cycle {cycle}  done {self.done:3d}  " \
-               f"{health}"
+               f"{health}{carried}"
 
     def headline(self) -> tuple[StationState, str, tuple[str, ...]]:
         """What a change of is printed as it happens."""
@@ -68,7 +72,8 @@ class Overview:
         else:
             state = StationState.WORKING if current is not None else StationState.IDLE
         return StationRow(station, state, current.product_id if current is not None else "", cycle,
-                          production.done if production is not None else 0, unhealthy)
+                          production.done if production is not None else 0, unhealthy,
+                          dict(current.carried) if current is not None else {})
 
     def rows(self, now: float) -> list[StationRow]:
         return [self.row(station, now) for station in self.stations]

@@ -48,8 +48,8 @@ def check_unique_names(stations: Iterable[StationConfig], routers: Iterable[str]
             holder = f"station {config.station.name}"
             if name in seen:
                 raise SecurityError(f"{config.path}: the certificate name {name!r} is also {seen[name]}'s: with "
-                                    f"[security] mode = \"tls\" every holder's name must be unique on the line (rename it: "
-                                    f"[controller] name, a [hubs.NAME] table, [security] operators or "
+                                    f"[security] mode = \"tls\" every holder's name must be unique on the line "
+                                    f"(rename it: [controller] name, a [hubs.NAME] table, [security] operators or "
                                     f"[overview] name)")
             seen[name] = holder
 
