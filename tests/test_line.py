@@ -19,8 +19,10 @@ from controller.state import StateStore
 from deploy.line.handover import Handover
 from deploy.line.store import LineStore, VisitState
 from deploy.orders_cli import order_row
+from deploy.remote.units import DEFAULT_SYSTEMD, line_controller_unit, local_systemd_version, write_units
 from tests.line_station.model import BOLTS, bolt, build_model
 from tests.line_station.site import write_line
+from tests.test_units import unit_problems
 
 GOOD = """
 [line]
@@ -241,3 +243,26 @@ CREATE TABLE orders (
     archive TEXT
 );
 """
+
+
+@pytest.mark.parametrize(("db", "storage"), [
+    ("var/line.sqlite", "ReadWritePaths=/etc/statehub/var"),  # beside line.toml, as on the target
+    ("/var/lib/statehub-line/line.sqlite", "StateDirectory=statehub-line"),  # systemd creates it
+])
+def test_the_line_controller_unit_loads_cleanly_and_may_write_its_db(tmp_path, db, storage):
+    path = write_line(tmp_path, 2, tls=True)
+    path.write_text(path.read_text().replace('db = "line.sqlite"', f'db = "{db}"', 1))
+    line = load_line(path)
+    base = tmp_path / "opt" / "line"
+    python = base / "current" / "venv" / "bin" / "python"
+    python.parent.mkdir(parents=True)
+    python.write_text("#!/bin/sh\nexit 0\n")
+    python.chmod(0o755)
+    version = local_systemd_version() or DEFAULT_SYSTEMD
+    unit = line_controller_unit(line, "/etc/statehub/line.toml", base=str(base), systemd_version=version)
+    assert unit.name == "statehub-line-controller.service"
+    assert "-m deploy.line.controller --config /etc/statehub/line.toml --certs" in unit.text
+    assert "Type=notify" in unit.text and "WatchdogSec=" in unit.text and "ProtectSystem=strict" in unit.text
+    assert storage in unit.text.splitlines()
+    (written,) = write_units([unit], tmp_path / "units")
+    assert unit_problems(written, version) == []  # systemd-analyze verify where it is installed
