@@ -124,7 +124,7 @@ async def test_a_line_runs_with_tls_and_access_control_at_the_routers(tmp_path):
     line = write_line(tmp_path, 2, tls=True)
     said: list[str] = []
     result = await run_line(LineOptions(config=str(line), products=2, run_dir=tmp_path / "run", time_limit=240,
-                                        overview_every_s=5.0), said.append)
+                                        overview_every_s=5.0, overview_bind="127.0.0.1:0"), said.append)
     text = "\n".join(said)
     assert "links: mutual TLS with the site's certificates" in text
     assert result.finished, text
