@@ -5,6 +5,12 @@ alarm, and the page following the line live; read-only (no control on it)."""
 from __future__ import annotations
 
 import asyncio
+import json
+import signal
+import socket
+import subprocess
+import sys
+import urllib.request
 
 from selenium.webdriver.common.by import By
 
@@ -13,6 +19,7 @@ from deploy.line.overview import UNREACHABLE_AFTER_S, Overview, site_picture
 from deploy.line.sitepage import served
 from tests.browser import chromium
 from tests.line_station.page import CONTROLS, station_rows, unreachable_shown, wait_for
+from tests.line_station.site import write_line
 from tests.test_line_up import status
 
 
@@ -62,3 +69,29 @@ async def test_the_page_lists_every_station_and_says_which_is_unreachable(tmp_pa
     assert "unhealthy: nr" in first["s3"]["cells"]
     assert (alarm["s1"]["cls"], alarm["s2"]["cls"]) == ("working", "alarm")
     assert (tmp_path / "line-overview.png").stat().st_size > 5_000
+
+
+def test_hubctl_line_overview_serves_the_page_beside_a_line_and_stops_on_sigterm(tmp_path):
+    """`hubctl line overview` on its own: with no router up yet every station is waiting, and the page's data
+    says so; SIGTERM ends it with 0."""
+    line = write_line(tmp_path, 3)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    process = subprocess.Popen([sys.executable, "-m", "deploy.cli", "line", "overview", "--config", str(line),
+                                "--bind", f"127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        assert process.stdout is not None
+        first = process.stdout.readline()
+        assert f"http://127.0.0.1:{port}/ (read-only; 3 stations)" in first, first + process.stderr.read()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/site.json", timeout=30) as reply:
+            picture = json.loads(reply.read())
+        assert [(s["station"], s["state"]) for s in picture["stations"]] == \
+            [("s1", "waiting"), ("s2", "waiting"), ("s3", "waiting")]
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=60) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
