@@ -84,7 +84,7 @@ def test_hubctl_line_overview_serves_the_page_beside_a_line_and_stops_on_sigterm
     try:
         assert process.stdout is not None
         first = process.stdout.readline()
-        assert f"http://127.0.0.1:{port}/ (read-only; 3 stations)" in first, first + process.stderr.read()
+        assert f"http://127.0.0.1:{port}/ (read-only; 3 stations)" in first, first
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/site.json", timeout=30) as reply:
             picture = json.loads(reply.read())
         assert [(s["station"], s["state"]) for s in picture["stations"]] == \
