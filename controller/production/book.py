@@ -158,6 +158,12 @@ class OrderBook:
             raise OrderError(f"no order {order_id}")
         return _from_row(row)
 
+    def orders_of(self, product_ids: Sequence[str]) -> list[Order]:
+        """The orders of these products in any state, however old (a line controller asks for its products')."""
+        rows = self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE product_id IN (SELECT value FROM json_each(?)) "
+                               "ORDER BY id", (json.dumps(list(product_ids)),)).fetchall()
+        return [_from_row(row) for row in rows]
+
     def orders(self, *, include_finished: bool = False) -> list[Order]:
         """The running order and the queue in order; with `include_finished` first the newest finished ones."""
         rows = []
@@ -167,12 +173,6 @@ class OrderBook:
                 (OrderState.DONE.value, OrderState.CANCELLED.value, LIST_FINISHED)).fetchall()[::-1]
         rows += self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE state IN (?, ?) ORDER BY id",
                                 (OrderState.RUNNING.value, OrderState.QUEUED.value)).fetchall()
-        return [_from_row(row) for row in rows]
-
-    def orders_of(self, product_ids: Sequence[str]) -> list[Order]:
-        """The orders of these products in any state, however old (a line controller asks for its products')."""
-        rows = self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE product_id IN (SELECT value FROM json_each(?)) "
-                               "ORDER BY id", (json.dumps(list(product_ids)),)).fetchall()
         return [_from_row(row) for row in rows]
 
     def current(self) -> Order | None:
