@@ -49,8 +49,8 @@ def check_unique_names(stations: Iterable[StationConfig], routers: Iterable[str]
             if name in seen:
                 raise SecurityError(f"{config.path}: the certificate name {name!r} is also {seen[name]}'s: with "
                                     f"[security] mode = \"tls\" every holder's name must be unique on the line "
-                                    f"(rename it: [controller] name, a [hubs.NAME] table, [security] operators or "
-                                    f"[overview] name)")
+                                    f"(rename it: [controller] name, a [hubs.NAME] table, [security] operators "
+                                    f"or [overview] name)")
             seen[name] = holder
 
 
