@@ -85,6 +85,26 @@ def check_agreement(compiled: CompiledModel, start: State, goals: dict[str, Pred
     return f"{len(ours.steps)} steps"
 
 
+def check_satisficing(compiled: CompiledModel, start: State, goals: dict[str, Predicate], forbidden: Predicate | None,
+                      disabled: frozenset[str], label: str, seconds: float) -> str:
+    """Where Fast Downward's optimal search cannot finish (the reference station's long goal sets): its satisficing
+    plan, read back, is valid under statehub's semantics, and it is no shorter than the plan statehub shows
+    shortest (a shorter valid plan would prove statehub's "shortest" wrong)."""
+    goal = all_of(*goals.values())
+    task = encode(compiled, start, goal, forbidden, disabled)
+    (satisficing,) = solve(task, (Search.SATISFICING,), timeout=600)
+    budget = Budget(first_expansions=10**7, improve_expansions=10**8, seconds=seconds, improve_seconds=seconds)
+    ours = Planner(compiled, forbidden).plan(start, goals, disabled, budget=budget)
+    assert isinstance(ours, Plan), f"{label}: statehub finds no plan ({ours.reason})"
+    assert ours.stats.minimal, f"{label}: statehub did not show its plan shortest"
+    assert satisficing.moves is not None, f"{label}: statehub plans {len(ours.steps)} steps, Fast Downward none"
+    validate_plan(compiled, start, read_back(compiled, start, satisficing, goals), goal, forbidden, disabled)
+    assert len(satisficing.moves) >= len(ours.steps), (
+        f"{label}: Fast Downward's plan of {len(satisficing.moves)} steps is valid and shorter than the "
+        f"{len(ours.steps)} statehub shows shortest:\n{', '.join(satisficing.plan or ())}")
+    return f"{len(ours.steps)} steps, Fast Downward's satisficing {len(satisficing.moves)}"
+
+
 def read_back(compiled: CompiledModel, start: State, answer: Answer, goals: dict[str, Predicate]) -> Plan:
     assert answer.moves is not None
     return plan_from_moves(compiled, start, answer.moves, tuple(goals), PlanStats("fast-downward"))
@@ -137,9 +157,12 @@ def test_the_optimal_search_is_blind_search_on_random_models() -> None:
 
 
 # --- the stations' hard goal sets ------------------------------------------------------------------------------
-STATION_CASES = ("machine_tending: 1 goals at start", "shared_workspace: 9 goals at start",
-                 "TightenBolt7 (filter tool at home)", "24 bolts (frame placed)",
-                 "Park+AttachFilterTool+3 filters+2 pipes", "RobotHome (where it stalled)")
+# Lengths checked against Fast Downward's optimum where its A* (h^max: lm-cut refuses derived predicates)
+# finishes; on the others (shared_workspace's 9 goals and the reference station's sets: still searching after
+# 9 min) its satisficing plans are checked valid and no shorter than statehub's shortest.
+OPTIMAL_STATION_CASES = ("machine_tending: 1 goals at start",)
+STATION_CASES = ("shared_workspace: 9 goals at start", "TightenBolt7 (filter tool at home)",
+                 "24 bolts (frame placed)", "Park+AttachFilterTool+3 filters+2 pipes", "RobotHome (where it stalled)")
 
 
 @functools.cache
@@ -151,7 +174,7 @@ def station_cases() -> dict[str, object]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", STATION_CASES)
+@pytest.mark.parametrize("name", OPTIMAL_STATION_CASES)
 def test_fast_downward_agrees_on_a_stations_goal_set(name: str, tmp_path: Path) -> None:
     from tests.bench.bench_planner import Case
 
@@ -159,6 +182,17 @@ def test_fast_downward_agrees_on_a_stations_goal_set(name: str, tmp_path: Path) 
     assert isinstance(case, Case)
     check_agreement(case.compiled, case.start, dict(case.goals), case.forbidden, frozenset(), case.name, tmp_path,
                     seconds=600.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", STATION_CASES)
+def test_fast_downwards_plans_are_valid_and_no_shorter_on_a_stations_goal_set(name: str) -> None:
+    from tests.bench.bench_planner import Case
+
+    case = station_cases()[name]
+    assert isinstance(case, Case)
+    check_satisficing(case.compiled, case.start, dict(case.goals), case.forbidden, frozenset(), case.name,
+                      seconds=600.0)
 
 
 # --- what the encoding refuses -----------------------------------------------------------------------------------
