@@ -158,7 +158,7 @@ class ControlLoop:
             start = flow.book.next()
             if start is not None:
                 core.load(start.values)
-                self.request(start.operations)
+                core.request(*start.operations)  # not the recording's `requested`: what the controller began with
                 flow.started(start.order, start.operations)
                 news.append(OrderStarted(start.order.id, start.order.product_id, start.order.variant,
                                          len(start.operations)))

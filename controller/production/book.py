@@ -128,6 +128,14 @@ class OrderBook:
         except sqlite3.IntegrityError:
             raise OrderError(f"product {product!r} already has an order") from None
 
+    def put(self, order: Order) -> None:
+        """Store `order` as it is (its id, state and times): a replay rebuilds a recorded run's orders."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self._insert(order.id, order.variant, order.product_id, order.parameters, order.origin, order.queued_at)
+            self.db.execute("UPDATE orders SET state=?, started_at=? WHERE id=?",
+                            (order.state.value, order.started_at, order.id))
+
     def cancel(self, order_id: int) -> Order:
         order = self.get(order_id)
         if order.state is OrderState.RUNNING:
