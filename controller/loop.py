@@ -150,6 +150,7 @@ class ControlLoop:
                 core.errors.clear()
                 core.livelock.finished()  # a new product: no state seen for the last one says anything
                 figures = flow.finished_order(done.order, core.clock(), self.cycle.spans)
+                self.cycle.forget_before(figures.end)  # the next order's window begins here
                 news.append(OrderFinished(done.order.id, done.order.product_id, done.order.variant,
                                           figures.cycle_s, order_line(figures)))
         # A station that runs every operation once (it never had an order) takes an order added meanwhile

@@ -166,6 +166,11 @@ class OrderBook:
                                 (OrderState.RUNNING.value, OrderState.QUEUED.value)).fetchall()
         return [_from_row(row) for row in rows]
 
+    def done_orders(self) -> list[Order]:
+        """Every done order, oldest first: read from the file, kept nowhere in memory."""
+        return [_from_row(row) for row in self.db.execute(
+            f"SELECT {_COLUMNS} FROM orders WHERE state=? ORDER BY id", (OrderState.DONE.value,))]
+
     def current(self) -> Order | None:
         """The running order: its product is on the station."""
         row = self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE state=?", (OrderState.RUNNING.value,)).fetchone()
