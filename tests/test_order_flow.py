@@ -22,8 +22,9 @@ from common.config.production import PlannedOrder, ProductionPlan, mixed
 from common.model import Model, OperationState
 from common.stations import load_model
 from common.wire.ctl import OrderFinished, OrderStarted, ProductionInfo, StatusMessage
+from common.wire.keys import Keys
 from common.wire.messages import decode, encode
-from common.wire.orders import OrdersAction, OrdersRequest, OrderState
+from common.wire.orders import OrdersAction, OrdersReply, OrdersRequest, OrderState
 from controller.production.client import ask_orders
 from controller.recording.reader import Record, open_run
 from controller.recording.schema import OperationRecord, RecordKind, RestoreRecord
@@ -165,15 +166,32 @@ async def _client(config: Path, lines: list[str]) -> list[str]:
         await asyncio.sleep(0.2)
     seen = []
     async with ZenohBus(watcher_zenoh_config(station, model, int(port), None)) as bus:
-        added = await ask_orders(bus, station.keys, OrdersRequest(action=OrdersAction.ADD, variant="light", count=2,
-                                                                  origin="test MES"), timeout=10.0)
-        assert added.accepted, added.reason
+        added = await _add_once(bus, station.keys)
         seen.append(f"added {[o.id for o in added.orders]}")
         cancelled = await ask_orders(bus, station.keys, OrdersRequest(action=OrdersAction.CANCEL,
                                                                       order=added.orders[-1].id), timeout=10.0)
         assert cancelled.accepted and cancelled.orders[0].state is OrderState.CANCELLED, cancelled.reason
         seen.append(f"cancelled {added.orders[-1].id}")
     return seen
+
+
+MES = "test MES"
+
+
+async def _add_once(bus: ZenohBus, keys: Keys) -> OrdersReply:
+    """Two light orders, added once although the controller may be down (`--chaos` kills it) when asked: an
+    unanswered request may still have been applied, so the orders are looked for before asking again."""
+    for _attempt in range(12):
+        added = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.ADD, variant="light", count=2,
+                                                          origin=MES), timeout=10.0)
+        if added.accepted:
+            return added
+        listed = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.LIST, include_finished=True),
+                                  timeout=10.0)
+        mine = [o for o in listed.orders if o.origin == MES]
+        if mine:
+            return OrdersReply(accepted=True, orders=mine)
+    raise AssertionError(f"the orders were never added: {added.reason}")
 
 
 async def _up_with_client(config: Path, **options: object) -> tuple[int, str, list[str]]:
