@@ -20,15 +20,23 @@ when the restarted controller first finds it, unless the killed one had seen it.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from common.model import And, Eq, Kind, Model, OperationState, Predicate, Ref, Value, all_of
 from common.stations import load_model
 from common.wire.ctl import OrderStarted
 from controller.recording.reader import Record, list_runs, open_run
-from controller.recording.schema import CommandRecord, OperationRecord, RecordKind, RestoreRecord, StateRecord
+from controller.recording.schema import (
+    CommandRecord,
+    HubState,
+    OperationRecord,
+    RecordKind,
+    RestoreRecord,
+    StateRecord,
+)
 from controller.recording.writer import recording_dir
 
 from .recordings import recording_settings
@@ -111,11 +119,22 @@ def _model_of(model: Model | None, reference: str) -> tuple[Model | None, str]:
 
 def count_finishes(records: Iterable[Record], into: DoneOnce) -> None:
     """Add one controller's `operation` and `restore` records (one recording, in order) to `into`."""
-    # What this controller knew: only what it restored, not what the one before it did (a controller that lost its
-    # state and finished an operation again redid it).
-    state: dict[str, str] = {}
+    counter = FinishCounter(into)
     for record in records:
-        data = record.data
+        counter.add(record)
+
+
+class FinishCounter:
+    """One controller's `operation` and `restore` records, added one at a time (in order) to a `DoneOnce`."""
+
+    def __init__(self, into: DoneOnce) -> None:
+        self.into = into
+        # What this controller knew: only what it restored, not what the one before it did (a controller that lost
+        # its state and finished an operation again redid it).
+        self.state: dict[str, str] = {}
+
+    def add(self, record: Record) -> None:
+        data, into, state = record.data, self.into, self.state
         if isinstance(data, RestoreRecord):
             for key, value in data.values.items():
                 if key.startswith(OPERATION_PREFIX):
@@ -205,26 +224,33 @@ class WorkCount:
         records what changed from them); until its first tick they are being taken in (persisted state, the
         hubs' states and mirrors), so the conditions are looked at then first: one that holds and did not
         hold at the previous controller's end is work done while no controller recorded it, counted once."""
-        values: dict[str, Value] = dict(self.model.initial_state())
-        by_path: dict[str, list[WorkItem]] = {}
+        self.begin()
+        for record in records:
+            self.add(record)
+
+    def begin(self) -> None:
+        """A controller's recording starts: `add` its records, in order."""
+        self._values: dict[str, Value] = dict(self.model.initial_state())
+        self._by_path: dict[str, list[WorkItem]] = {}
         for item in self.items:
             for path in item.seen.paths():
-                by_path.setdefault(path, []).append(item)
-        ticked = False
-        for record in records:
-            data = record.data
-            if isinstance(data, OrderStarted):
-                self.order = data.order
-                operations = self.model.variant_by_name[data.variant].requested(self.model.operations)
-                self.asked[data.order] = work_asked(self.model, self.items, operations)
-            elif record.kind is RecordKind.TICK and not ticked:
-                ticked = True
-                self._look(self.items, values)
-            elif isinstance(data, StateRecord | CommandRecord | RestoreRecord) and data.values:
-                values.update(data.values)
-                if ticked:
-                    self._look({item.name: item for path in data.values for item in by_path.get(path, ())}.values(),
-                               values)
+                self._by_path.setdefault(path, []).append(item)
+        self._ticked = False
+
+    def add(self, record: Record) -> None:
+        data, values = record.data, self._values
+        if isinstance(data, OrderStarted):
+            self.order = data.order
+            operations = self.model.variant_by_name[data.variant].requested(self.model.operations)
+            self.asked[data.order] = work_asked(self.model, self.items, operations)
+        elif record.kind is RecordKind.TICK and not self._ticked:
+            self._ticked = True
+            self._look(self.items, values)
+        elif isinstance(data, StateRecord | CommandRecord | RestoreRecord) and data.values:
+            values.update(data.values)
+            if self._ticked:
+                self._look({item.name: item for path in data.values for item in self._by_path.get(path, ())}.values(),
+                           values)
 
     def _look(self, items: Iterable[WorkItem], values: Mapping[str, Value]) -> None:
         for item in items:
@@ -250,3 +276,35 @@ class WorkCount:
                      + ", ".join(f"{item} of order {order}" for order, item in missed[:5])
                      + (" ..." if len(missed) > 5 else ""))
         return text
+
+
+class DoneOnceSink:
+    """A run's recording sink (controller/recording/hooks.py) that keeps nothing but the counts: each operation's
+    finishes and resets and the physical work per order, as the records come, so a run of hundreds of orders in
+    process is checked as `check_done_once` checks a recorded one, in memory that does not grow with the orders."""
+
+    def __init__(self, model: Model) -> None:
+        self.done = DoneOnce([])
+        self._finishes = FinishCounter(self.done)
+        self.work = self.done.work = WorkCount(model, work_items(model))
+        self.work.begin()
+        self._requested: list[str] = []
+
+    def put(self, t: float, kind: RecordKind, key: str, data: Any) -> None:
+        record = Record(t, kind, key, data)
+        if kind in (RecordKind.OPERATION, RecordKind.RESTORE):
+            self._finishes.add(record)
+        if kind in WORK_KINDS:
+            self.work.add(record)
+
+    def ingested(self, t: float, changed: dict[str, Value], hub_states: Sequence[HubState]) -> None:
+        if changed:
+            self.work.add(Record(t, RecordKind.STATE, "", StateRecord(values=dict(changed))))
+
+    def update_meta(self, **fields: Any) -> None:
+        requested = fields.get("requested")
+        if requested is not None:
+            self._requested = list(requested)
+
+    def close(self) -> None:
+        self.work.finish(self._requested)
