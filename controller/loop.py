@@ -49,6 +49,7 @@ from .recording.schema import RunOutcome
 from .requests import Requests
 
 NOT_HELD: frozenset[str] = frozenset()
+FINISHED = OperationState.FINISHED.value  # an operation variable's value once it finished
 
 
 @dataclass(frozen=True)
@@ -141,7 +142,7 @@ class ControlLoop:
         assert flow is not None
         news: list[OrderStarted | OrderFinished] = []
         current = flow.current
-        if current is not None and all(core.op_state(name) is OperationState.FINISHED for name in flow.requested):
+        if current is not None and self._all_finished(flow.requested):
             values = core.compiled.unpack(core.state)
             if flow.book.complete(current, values):
                 done = flow.book.finish(current, values)
@@ -155,7 +156,7 @@ class ControlLoop:
                                           figures.cycle_s, order_line(figures)))
         # A station that runs every operation once (it never had an order) takes an order added meanwhile
         # only when its operations are done: the order's start would reset them.
-        if flow.current is None and all(core.op_state(name) is OperationState.FINISHED for name in core.requested):
+        if flow.current is None and self._all_finished(core.requested):
             start = flow.book.next()
             if start is not None:
                 core.load(start.values)
@@ -168,6 +169,11 @@ class ControlLoop:
         if news:
             self.recorder.after()  # the operations reset and the events, recorded in this tick
         return news
+
+    def _all_finished(self, operations: Iterable[str]) -> bool:
+        """`core.op_state(name) is FINISHED` for each, read as the raw values: asked at every tick."""
+        state, index = self.core.state, self.core.op_index
+        return all(state[index[name]] == FINISHED for name in operations)
 
     def orders_done(self) -> bool:
         """A station running orders has none running or waiting."""
