@@ -7,13 +7,15 @@ import pytest
 
 from common.config.production import ProductionPlan, mixed
 from common.stations import load_model
-from common.wire.ctl import RECENT_ORDERS
+from common.wire.ctl import RECENT_ORDERS, OrderFinished
 from controller.cycle import CycleRecord
+from controller.events import EventLog
 from controller.loop import ControlLoop
 from controller.production import flow as flow_module
 from deploy.local import inprocess
 
 REFERENCE = "common.stations.engine_assembly:build_model"
+EVENTS_HELD = 50
 
 
 def test_spans_let_go_keep_their_busy_time_and_the_last_span() -> None:
@@ -49,3 +51,49 @@ def test_what_the_loop_keeps_per_order_does_not_grow_with_the_orders(monkeypatch
     assert summary.finished and summary.throughput is not None and summary.throughput.orders == 7
     assert len(sizes) == 7 and len(summary.orders) == 2
     assert max(sizes[RECENT_ORDERS:]) <= sizes[RECENT_ORDERS - 1], sizes
+
+
+def test_over_orders_the_caches_the_event_log_and_the_order_books_tables_stop_growing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """10 orders in process: after the 5th, the planner's memories (plans and searches), the goals without a
+    plan, the event log held, the finished orders' figures and the order book's state tables are no larger
+    than then. The order book keeps a row per order (that is the data); the event log holds at most its bound
+    although more events were emitted; the recording is a file per controller start, rotated
+    (controller/recording)."""
+    sizes: list[dict[str, int]] = []
+    tick = ControlLoop.tick
+    seen: list[ControlLoop] = []
+
+    def counting_tick(loop: ControlLoop, *args: object, **kwargs: object) -> object:
+        ticked = tick(loop, *args, **kwargs)  # type: ignore[arg-type]
+        if any(isinstance(event, OrderFinished) for event in ticked.orders):
+            core, flow = loop.core, loop.orders
+            assert flow is not None
+            db = flow.book.store.db
+            sizes.append({
+                "plans remembered": len(core.planner.memory),
+                "searches remembered": len(core.planner.searches),
+                "goals without a plan": len(core.errors),
+                "events held": len(list(core.events.log)),
+                "figures kept": len(flow.finished),
+                "state variables": db.execute("SELECT COUNT(*) FROM variables").fetchone()[0],
+                "state meta": db.execute("SELECT COUNT(*) FROM meta").fetchone()[0],
+                "orders": db.execute("SELECT COUNT(*) FROM orders").fetchone()[0],
+            })
+            seen[:] = [loop]
+        return ticked
+
+    monkeypatch.setattr(flow_module, "RECENT_FIGURES", 2)
+    monkeypatch.setattr(EventLog.__init__, "__defaults__", (EVENTS_HELD,))  # full within the run (30 an order)
+    monkeypatch.setattr(ControlLoop, "tick", counting_tick)
+    model = load_model(REFERENCE)
+    summary = inprocess.run_in_process(model, seed=1, production=ProductionPlan(mixed({"full": 1, "light": 1}, 10),
+                                                                               "test"), time_limit=7200.0)
+    assert summary.finished and len(sizes) == 10
+    settled = sizes[4]
+    for later in sizes[5:]:
+        grown = {name: (settled[name], count) for name, count in later.items() if count > settled[name]}
+        assert not grown, grown
+    assert sizes[-1]["orders"] == 10 and sizes[-1]["searches remembered"] > 0
+    log = seen[0].core.events.log
+    assert sizes[-1]["events held"] == EVENTS_HELD < log.total, (sizes[-1]["events held"], log.total)

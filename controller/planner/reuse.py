@@ -43,6 +43,9 @@ class PlanMemory:
         self.kept = kept
         self._plans: OrderedDict[Key, Plan] = OrderedDict()
 
+    def __len__(self) -> int:
+        return len(self._plans)
+
     def remember(self, key: Key, plan: Plan) -> None:
         self._plans[key] = plan
         self._plans.move_to_end(key)
