@@ -4,7 +4,8 @@ The loop finishes the running order once every operation it requests is finished
 as a `restore` and the operations' finished -> initial) and starts the next; the checks read the run's
 recording: between one order's start and the next, each operation of its variant finished exactly once and no
 other. In process (virtual time) and over real processes (`run_station`), where a client of its own adds and
-cancels orders while the station runs.
+cancels orders while the station runs. The long runs in process (200 orders a seed) are
+tests/test_production_long.py's.
 """
 
 from __future__ import annotations
@@ -89,23 +90,6 @@ def test_a_run_without_orders_runs_every_operation_once_and_starts_no_order() ->
     summary = run_in_process(model, seed=1, recording=sink)
     assert summary.finished and summary.throughput is None and not summary.orders
     assert not [r for r in sink.records if isinstance(r.data, OrderStarted | OrderFinished)]
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(1800)
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_twenty_orders_in_process_each_operation_once_per_order(seed: int) -> None:
-    model = load_model(REFERENCE)
-    plan = ProductionPlan(mixed({"full": 1, "light": 1}, 20), "test")
-    assert_each_operation_once_per_order(model, _run(model, plan, seed), 20)
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(1800)
-def test_twenty_orders_with_a_failing_nutrunner_each_operation_once_per_order() -> None:
-    model = load_model(REFERENCE)
-    plan = ProductionPlan(mixed({"full": 1, "light": 1}, 20), "test")
-    assert_each_operation_once_per_order(model, _run(model, plan, seed=1, failure={"nr": 0.2}), 20)
 
 
 # --- each operation done once, over restarts --------------------------------------------------------
