@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
-from common.model import all_of
+from common.model import Const, all_of
 from common.model.compiled import CompiledModel
 from controller.planner import Budget, Plan, Planner, validate_plan
 from controller.planner import portfolio as portfolio_module
@@ -70,7 +70,7 @@ def test_an_answer_the_clock_may_have_cut_short_is_not_remembered() -> None:
 
 def test_the_memory_keeps_the_newest_questions_only() -> None:
     memory = SearchMemory(kept=2)
-    keys = [question_key((i,), (), frozenset(), 10) for i in range(3)]
+    keys = [question_key((i,), Const(True), (), frozenset(), 10) for i in range(3)]
     answer: Callable[[int], SearchedAnswer] = lambda i: SearchedAnswer(((i, 0),), None, i, i)  # noqa: E731
     memory.remember(keys[0], answer(0))
     memory.remember(keys[1], answer(1))

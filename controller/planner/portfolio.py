@@ -271,7 +271,8 @@ class PortfolioRun:
                 deadline: float | None) -> tuple[Plan | NoPlan | None, str | None]:
         """(a plan or None, None) or (None, why the goals are unreachable): what the member settled for this
         question before (`reuse.SearchMemory`), else its search."""
-        key = question_key(self.start, tuple((n, self.goals[n]) for n in self.names), self.disabled, expansions)
+        key = question_key(self.start, goal, tuple((n, self.goals[n]) for n in self.names), self.disabled,
+                           expansions)
         known = self.planner.searches.recall(key)
         if known is None:
             expanded, generated = self.expanded, self.generated

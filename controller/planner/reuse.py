@@ -8,11 +8,11 @@ validated by simulation like every other member's plan. The rest of a shortest p
 shortest plan from where it starts (a shorter one would shorten the whole), so the rest of a
 plan shown minimal is minimal too.
 
-`SearchMemory` keeps what the satisficing member settled per question (start, goals, disabled resources,
-expansion count): a station running orders comes back to the states it planned from before (the product
-reset, the devices home) and asks the same questions each order. The member is deterministic given the
-question, so its remembered answer is the one it would find again; an answer cut short by the wall clock
-is not kept (with more time it may differ).
+`SearchMemory` keeps what the satisficing member settled per question (start, goal, the request's
+goals, disabled resources, expansion count): a station running orders comes back to the states it planned
+from before (the product reset, the devices home) and asks the same questions each order. The member is
+deterministic given the question, so its remembered answer is the one it would find again; an answer cut
+short by the wall clock is not kept (with more time it may differ).
 """
 
 from __future__ import annotations
@@ -73,13 +73,15 @@ class PlanMemory:
         self._plans.clear()
 
 
-QuestionKey = tuple[State, tuple[tuple[str, Predicate], ...], frozenset[str], int]
+QuestionKey = tuple[State, Predicate, tuple[tuple[str, Predicate], ...], frozenset[str], int]
 
 
-def question_key(start: State, goals: tuple[tuple[str, Predicate], ...], disabled: frozenset[str],
+def question_key(start: State, goal: Predicate, goals: tuple[tuple[str, Predicate], ...], disabled: frozenset[str],
                  expansions: int) -> QuestionKey:
-    """The goals by name in their order (the goal agenda follows it) and the expansions the member may use."""
-    return start, goals, frozenset(disabled), expansions
+    """`goal`: what is searched for (the request's goals, or a subset of them when looking for the smallest
+    unreachable one); `goals`: the request's by name in their order (the goal agenda follows it); and the
+    expansions the member may use."""
+    return start, goal, goals, frozenset(disabled), expansions
 
 
 @dataclass(frozen=True)
