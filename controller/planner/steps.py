@@ -140,6 +140,12 @@ class TimedRaces:
     def __bool__(self) -> bool:
         return bool(self._due_before) and not self.suspended
 
+    @property
+    def version(self) -> tuple[int, bool]:
+        """Changes whenever a race is learnt or the known ones are suspended: what searches remembered by
+        question (reuse.SearchMemory) are keyed on. Races are only ever added."""
+        return sum(map(len, self._due_before.values())), self.suspended
+
     @contextlib.contextmanager
     def suspended_while(self) -> Iterator[None]:
         """Plan as if no race were known: when none but a plan that loses one reaches the goals, that plan is

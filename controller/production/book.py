@@ -139,6 +139,14 @@ class OrderBook:
         except sqlite3.IntegrityError:
             raise OrderError(f"product {product!r} already has an order") from None
 
+    def put(self, order: Order) -> None:
+        """Store `order` as it is (its id, state and times): a replay rebuilds a recorded run's orders."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self._insert(order.id, order.variant, order.product_id, order.parameters, order.origin, order.queued_at)
+            self.db.execute("UPDATE orders SET state=?, started_at=? WHERE id=?",
+                            (order.state.value, order.started_at, order.id))
+
     def cancel(self, order_id: int) -> Order:
         order = self.get(order_id)
         if order.state is OrderState.RUNNING:
@@ -174,6 +182,11 @@ class OrderBook:
         rows += self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE state IN (?, ?) ORDER BY id",
                                 (OrderState.RUNNING.value, OrderState.QUEUED.value)).fetchall()
         return [_from_row(row) for row in rows]
+
+    def done_orders(self) -> list[Order]:
+        """Every done order, oldest first: read from the file, kept nowhere in memory."""
+        return [_from_row(row) for row in self.db.execute(
+            f"SELECT {_COLUMNS} FROM orders WHERE state=? ORDER BY id", (OrderState.DONE.value,))]
 
     def current(self) -> Order | None:
         """The running order: its product is on the station."""
