@@ -182,6 +182,7 @@ class CycleRecord:
         self.work: dict[str, float] = {}  # each resource's effects seen happen, at their durations
         self.plan_bound: Bound | None = None  # the bound of the plan under way, from its adoption
         self.spans: dict[str, list[list[float]]] = {r: [] for r in self.resources}
+        self.busy_let_go: dict[str, float] = {}  # the busy time of the spans let go (`forget_before`)
         self.waits: dict[str, dict[str, float]] = {r: {} for r in self.resources}
 
     def planned(self, now: float, predicted: float, bound: Bound) -> None:
@@ -213,10 +214,22 @@ class CycleRecord:
             if spans:
                 spans[-1][1] = max(spans[-1][1], now)
 
+    def forget_before(self, t: float) -> None:
+        """Let go of the spans that ended before `t`, keeping their busy time: a station running orders needs
+        an order's spans only until the order finished (controller/production/flow.py), and must not keep a
+        shift's worth of them."""
+        for r, spans in self.spans.items():
+            old = 0
+            while old < len(spans) - 1 and spans[old][1] < t:  # never the last: it may still grow
+                old += 1
+            if old:
+                self.busy_let_go[r] = self.busy_let_go.get(r, 0.0) + sum(b - a for a, b in spans[:old])
+                del spans[:old]
+
     def report(self, end: float) -> CycleReport:
         idle = []
         for r in self.resources:
-            busy = sum(b - a for a, b in self.spans.get(r, ()))
+            busy = self.busy_let_go.get(r, 0.0) + sum(b - a for a, b in self.spans.get(r, ()))
             waits = sorted(self.waits.get(r, {}).items(), key=lambda kv: -kv[1])
             idle.append(ResourceIdle(r, max(0.0, end - busy), tuple(waits)))
         busiest = max(self.work, key=lambda r: (self.work[r], r), default="")

@@ -45,6 +45,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
@@ -63,6 +64,13 @@ MAX_OPERATION_ROUNDS = 1000
 HOLD_BOUND_FACTOR = 2.0
 
 
+def _reader(indices: tuple[int, ...]) -> Callable[[Sequence[Value]], object]:
+    """The values at `indices` (a bare value for one index, as `itemgetter` returns it; () for none)."""
+    if not indices:
+        return lambda _state: ()
+    return itemgetter(*indices)
+
+
 class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
@@ -75,7 +83,16 @@ class PlanProgress:
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
         self.post: list[tuple[tuple[int, Value], ...]] = [
             tuple((i, plan.states[j + 1][i]) for i in sorted(t.writes)) for j, t in enumerate(self.transitions)]
+        # Each step's written values read at once (`observed` is asked of every step left at every tick).
+        self._post_read = [_reader(tuple(i for i, _ in post)) for post in self.post]
+        self._post_values = [_reader(tuple(range(len(post))))(tuple(v for _, v in post)) for post in self.post]
         self.reorder(compiled, self.execution)
+        # The steps each stage looks at, in plan order: a tick walks them several times, and reading each
+        # step's kind through its transition was a tenth of an in-process run.
+        self.watched = tuple(j for j, t in enumerate(self.transitions) if t.kind is not TransitionKind.DELIBERATE)
+        self.effect_steps = tuple(j for j, t in enumerate(self.transitions) if t.kind is TransitionKind.EFFECT)
+        self.deliberate_steps = tuple(j for j, t in enumerate(self.transitions)
+                                      if t.kind is TransitionKind.DELIBERATE)
         relevant: set[int] = set()
         for t in self.transitions:
             relevant |= t.reads | t.writes
@@ -121,7 +138,8 @@ class PlanProgress:
             self.expected[i] = value
 
     def observed(self, j: int, state: State) -> bool:
-        return all(state[i] == v for i, v in self.post[j])
+        """Every variable step j writes has the value it writes."""
+        return bool(self._post_read[j](state) == self._post_values[j])
 
     def early(self, j: int, state: State) -> bool:
         """Step j (an effect or automatic) visibly happened before steps it was ordered after.
@@ -150,9 +168,9 @@ class PlanProgress:
 
     def note_due(self, state: State) -> None:
         """Remember, for each effect step whose predecessors are done, the last state in which it was enabled."""
-        for j in self.pending():
-            t = self.transitions[j]
-            if t.kind is TransitionKind.EFFECT and self.ready(j) and t.guard(state):
+        done = self.done
+        for j in self.effect_steps:
+            if j not in done and self.depends[j] <= done and self.transitions[j].guard(state):
                 self.due[j] = state
 
     def lost_effect(self, compiled: CompiledModel, state: State) -> LostEffect | None:
@@ -370,9 +388,9 @@ class Engine:
                     break
                 progress.note_due(state)
                 fired_one = False
-                for j in list(progress.pending()):
+                for j in progress.deliberate_steps:
                     t = progress.transitions[j]
-                    if t.kind is not TransitionKind.DELIBERATE or not progress.ready(j) or is_disabled(t):
+                    if not progress.ready(j) or is_disabled(t):  # (a step done in this pass is not ready)
                         continue
                     if now is not None:
                         progress.ready_at.setdefault(j, now)
@@ -433,11 +451,11 @@ class Engine:
     def _observe(progress: PlanProgress, state: State, now: float | None = None) -> None:
         """Mark effect and automatic steps done once their predecessors are done and their result shows."""
         changed = True
+        done = progress.done
         while changed:
             changed = False
-            for j in list(progress.pending()):
-                t = progress.transitions[j]
-                if t.kind is TransitionKind.DELIBERATE or not progress.observed(j, state):
+            for j in progress.watched:
+                if j in done or not progress.observed(j, state):
                     continue
                 if progress.ready(j) or progress.early(j, state):
                     progress.mark_done(j, now)

@@ -57,6 +57,7 @@ from .timed_check import STRICTEST, Revalidate, TimedCheck, TimingRefusal, Verdi
 NOT_HELD: frozenset[str] = frozenset()
 LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
 LEARNT_SEARCH_SHARE = 10  # of the satisficing member's budget, what a search with races learnt may spend
+FINISHED = OperationState.FINISHED.value  # an operation variable's value once it finished
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ class ControlLoop:
         assert flow is not None
         news: list[OrderStarted | OrderFinished] = []
         current = flow.current
-        if current is not None and all(core.op_state(name) is OperationState.FINISHED for name in flow.requested):
+        if current is not None and self._all_finished(flow.requested):
             values = core.compiled.unpack(core.state)
             if flow.book.complete(current, values):
                 done = flow.book.finish(current, values)
@@ -169,15 +170,16 @@ class ControlLoop:
                 core.errors.clear()
                 core.livelock.finished()  # a new product: no state seen for the last one says anything
                 figures = flow.finished_order(done.order, core.clock(), self.cycle.spans)
+                self.cycle.forget_before(figures.end)  # the next order's window begins here
                 news.append(OrderFinished(done.order.id, done.order.product_id, done.order.variant,
                                           figures.cycle_s, order_line(figures)))
         # A station that runs every operation once (it never had an order) takes an order added meanwhile
         # only when its operations are done: the order's start would reset them.
-        if flow.current is None and all(core.op_state(name) is OperationState.FINISHED for name in core.requested):
+        if flow.current is None and self._all_finished(core.requested):
             start = flow.book.next()
             if start is not None:
                 core.load(start.values)
-                self.request(start.operations)
+                core.request(*start.operations)  # not the recording's `requested`: what the controller began with
                 flow.started(start.order, start.operations)
                 news.append(OrderStarted(start.order.id, start.order.product_id, start.order.variant,
                                          len(start.operations)))
@@ -186,6 +188,11 @@ class ControlLoop:
         if news:
             self.recorder.after()  # the operations reset and the events, recorded in this tick
         return news
+
+    def _all_finished(self, operations: Iterable[str]) -> bool:
+        """`core.op_state(name) is FINISHED` for each, read as the raw values: asked at every tick."""
+        state, index = self.core.state, self.core.op_index
+        return all(state[index[name]] == FINISHED for name in operations)
 
     def orders_done(self) -> bool:
         """A station running orders has none running or waiting."""

@@ -223,7 +223,8 @@ def cmd_up(args: argparse.Namespace) -> int:
                              report=lambda line: print(line, flush=True), budget=budget, recording=recording,
                              production=in_process_plan)
     print()
-    done = (f"{len(summary.orders)}/{len(in_process_plan.orders)} orders" if in_process_plan is not None else
+    orders_done = summary.throughput.orders if summary.throughput is not None else 0
+    done = (f"{orders_done}/{len(in_process_plan.orders)} orders" if in_process_plan is not None else
             f"{summary.operations_finished}/{summary.operations_total} operations")
     print(f"{'finished' if summary.finished else 'NOT finished'}: {done}, {summary.abilities} abilities started, "
           f"{summary.plans} plans, {summary.replans} replans, {summary.no_plans} goals without plan")
@@ -378,6 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .line.cli import register_line_commands
 
     register_line_commands(sub)
+
+    from .export_cli import register_export_command
+
+    register_export_command(sub, DEFAULT_MODEL)
     return parser
 
 

@@ -80,8 +80,11 @@ def request_of(args: argparse.Namespace, origin: str) -> OrdersRequest:
 
 def order_row(order: Order) -> str:
     parameters = " ".join(f"{k}={v}" for k, v in sorted(order.parameters.items()))
-    return f"{order.id:>5}  {order.state:<9}  {order.variant:<10}  {order.product_id}" + (
+    row = f"{order.id:>5}  {order.state:<9}  {order.variant:<10}  {order.product_id}" + (
         f"  {parameters}" if parameters else "")
+    if order.carried:  # a line's product: its state as the previous station archived it
+        row += "\n       carried: " + " ".join(f"{k}={v}" for k, v in sorted(order.carried.items()))
+    return row
 
 
 def print_reply(reply: OrdersReply) -> int:

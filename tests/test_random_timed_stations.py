@@ -93,7 +93,9 @@ def test_500_followable_timed_stations_complete_in_process(seed: int) -> None:
     check_followable_completes(seed)
 
 
-@settings(max_examples=20, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+# Each unfollowable station costs seconds of wall time: every request is checked in time and searched again
+# with the learnt races before the livelock watch gives up; a few in the default run, more among the slow ones.
+@settings(max_examples=5, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
           phases=RUN_ONLY)
 @given(seed=SEEDS)
 def test_unfollowable_timed_stations_stop_within_a_minute_with_the_diagnosis(seed: int) -> None:
@@ -101,10 +103,10 @@ def test_unfollowable_timed_stations_stop_within_a_minute_with_the_diagnosis(see
 
 
 @pytest.mark.slow
-@settings(max_examples=200, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+@settings(max_examples=40, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow],
           phases=RUN_ONLY)
 @given(seed=SEEDS)
-def test_200_unfollowable_timed_stations_stop_with_the_diagnosis(seed: int) -> None:
+def test_40_unfollowable_timed_stations_stop_with_the_diagnosis(seed: int) -> None:
     check_unfollowable_stops_with_the_diagnosis(seed)
 
 

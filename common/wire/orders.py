@@ -1,7 +1,9 @@
 """Orders, and what an MES, `hubctl orders` or the console asks of the controller about them.
 
 An order is a product id, a variant of the station model and parameter values overriding the
-variant's; the controller's order book (controller/production/book.py) keeps them. The requests
+variant's; the controller's order book (controller/production/book.py) keeps them. On a line an order
+also carries the product's state as the previous station archived it (`carried`, kept with the order, not
+applied to the station's variables), and a done order its own archive (`archive`). The requests
 travel as a Zenoh query on `{station}/ctl/orders` carrying an `OrdersRequest`; the controller
 answers one `OrdersReply`: accepted, or refused with the reason, and the orders concerned.
 """
@@ -37,6 +39,11 @@ class Order(msgspec.Struct, frozen=True, kw_only=True):
     queued_at: float = 0.0  # wall clock, seconds since the epoch
     started_at: float | None = None
     finished_at: float | None = None  # done or cancelled
+    # The product's state as the previous station of a line archived it (its product variables' values at
+    # its finish), handed over by the line controller; {} for a product that starts here.
+    carried: dict[str, ParameterValue] = msgspec.field(default_factory=dict)
+    # A done order: its product's state as this station archived it at the finish; {} before.
+    archive: dict[str, ParameterValue] = msgspec.field(default_factory=dict)
 
     def describe(self) -> str:
         parameters = "".join(f" {k}={v}" for k, v in sorted(self.parameters.items()))
@@ -57,6 +64,9 @@ class OrdersRequest(Message, kw_only=True):
     parameters: dict[str, ParameterValue] = msgspec.field(default_factory=dict)  # add
     order: int = 0  # cancel: the order's id
     include_finished: bool = False  # list: done and cancelled orders too (the newest LIST_FINISHED)
+    # list: only the orders of these products, in any state (however old); empty: no filter
+    product_ids: list[str] = msgspec.field(default_factory=list)
+    carried: dict[str, ParameterValue] = msgspec.field(default_factory=dict)  # add (count 1): Order.carried
     origin: str = ""  # who asks (user@host), for the controller's event log
 
     def describe(self) -> str:
@@ -64,7 +74,7 @@ class OrdersRequest(Message, kw_only=True):
             return f"add {self.count} x {self.variant}" + (f" ({self.product_id})" if self.product_id else "")
         if self.action is OrdersAction.CANCEL:
             return f"cancel order {self.order}"
-        return "list orders"
+        return f"list the orders of {len(self.product_ids)} products" if self.product_ids else "list orders"
 
 
 class OrdersReply(Message, kw_only=True):

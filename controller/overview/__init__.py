@@ -6,5 +6,6 @@ feed.py      the station as the overview knows it, kept current from the bus and
 runfile.py   the Gantt chart's data: the station's newest recorded run
 web.py       the aiohttp server: the page, its static files, its server-sent events; GET only
 main.py      the process (`hubctl overview`, `python -m controller.overview`)
+site.py      the line's site view: a row per station of a line (served by `hubctl line up|overview`)
 static/      the page: HTML, CSS and a small script that draws the tables and the Gantt chart in SVG
 """

@@ -24,7 +24,7 @@ from .heuristics import GoalHeuristic, HeuristicOptions
 from .plans import NoPlan, Plan, PlanStats, PlanStep, moves_of
 from .portfolio import Budget, PortfolioRun
 from .relaxed import RelaxedModel
-from .reuse import PlanMemory
+from .reuse import PlanMemory, SearchMemory
 from .steps import Move, RaceCheck, StateTest, StepSystem, TimedRaces, stable_goal
 from .stopping import StopTest
 from .symbolic import SymbolicPlanner
@@ -69,6 +69,7 @@ class Planner:
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
         self.memory = PlanMemory(compiled)
+        self.searches = SearchMemory()
 
     # --- caches -----------------------------------------------------------------------------
     def race_check(self, disabled: frozenset[str]) -> RaceCheck:
@@ -162,6 +163,7 @@ class Planner:
             self._abstractions.clear()
             self._heuristics.clear()
             self.memory.clear()
+            self.searches.clear()
 
     # --- planning -----------------------------------------------------------------------------
     def plan(
@@ -212,7 +214,9 @@ class Planner:
         compiled = self.compiled
         is_goal = stable_goal(compiled, self.goal_test(all_of(*goals.values())), disabled)
         moves = moves_of(compiled, steps)
-        plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"))
+        # The printed steps' cache is shared with the search's (a dict read or write is atomic; a step printed
+        # twice by two threads is the same step).
+        plan = plan_from_moves(compiled, start, moves, tuple(goals), PlanStats("revalidated"), self._steps)
         try:
             check_plan(compiled, start, plan, is_goal, self.is_forbidden, disabled, "the goals",
                        self.race_check(disabled))

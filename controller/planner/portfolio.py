@@ -36,10 +36,10 @@ from .greedy import greedy
 from .heuristics import GoalHeuristic
 from .plans import NoPlan, Plan, PlanStats, moves_of
 from .relaxed import RelaxedModel
-from .reuse import PlanMemory
+from .reuse import PlanMemory, SearchedAnswer, SearchMemory, question_key
 from .search import SearchEnd, SearchResult, astar
 from .shorten import eliminate, without_loops
-from .steps import Move, StateTest, StepSystem, stable_goal
+from .steps import Move, StateTest, StepSystem, TimedRaces, stable_goal
 from .stopping import Stopped, StopTest
 from .symbolic import SymbolicPlanner
 from .validate import PlanInvalid
@@ -80,6 +80,8 @@ class PlannerTables(Protocol):
     forbidden: Predicate | None
     is_forbidden: StateTest | None  # `forbidden` compiled; None: nothing is forbidden
     memory: PlanMemory
+    searches: SearchMemory  # the satisficing member's answers by question
+    timed_races: TimedRaces  # the races plans lost in time: a search's answer depends on them
     max_subset: int
 
     def step_system(self, disabled: frozenset[str]) -> StepSystem: ...
@@ -113,6 +115,7 @@ class PortfolioRun:
         self.began = time.perf_counter()
         self.expanded = 0
         self.generated = 0
+        self.out_of_budget = False  # a search ran out of its expansions or its clock
         self.build = 0.0
         self.first_seconds = 0.0
         self.first_length = -1
@@ -132,6 +135,8 @@ class PortfolioRun:
         self.generated += found.generated
         if found.end is SearchEnd.STOPPED:
             raise Stopped
+        if found.end is SearchEnd.OUT_OF_BUDGET:
+            self.out_of_budget = True
 
     def _plan(self, moves: list[Move], method: str, minimal: bool, is_goal: Callable[[State], bool]) -> Plan | NoPlan:
         stats = self._stats(method, minimal)
@@ -265,14 +270,34 @@ class PortfolioRun:
 
     def _greedy(self, goal: Predicate, is_goal: Callable[[State], bool], expansions: int,
                 deadline: float | None) -> tuple[Plan | NoPlan | None, str | None]:
-        """(a plan or None, None) or (None, why the goals are unreachable)."""
+        """(a plan or None, None) or (None, why the goals are unreachable): what the member settled for this
+        question before (`reuse.SearchMemory`), else its search."""
+        key = question_key(self.start, goal, tuple((n, self.goals[n]) for n in self.names), self.disabled,
+                           expansions, self.planner.timed_races.version)
+        known = self.planner.searches.recall(key)
+        if known is None:
+            expanded, generated = self.expanded, self.generated
+            moves, proof = self._search_greedy(goal, is_goal, expansions, deadline)
+            known = SearchedAnswer(None if moves is None else tuple(moves), proof, self.expanded - expanded,
+                                   self.generated - generated)
+            if deadline is None or not self.out_of_budget:  # the clock may have cut it short: not repeatable
+                self.planner.searches.remember(key, known)
+        else:
+            self.expanded += known.expanded
+            self.generated += known.generated
+        if known.moves is not None:
+            return self._plan(list(known.moves), "greedy", False, is_goal), None
+        return None, known.proof
+
+    def _search_greedy(self, goal: Predicate, is_goal: Callable[[State], bool], expansions: int,
+                       deadline: float | None) -> tuple[list[Move] | None, str | None]:
+        """(the moves found, None), (None, why the goals are unreachable) or (None, None): out of budget."""
         planner = self.planner
         if len(self.names) >= AGENDA_FROM:
             before = self.expanded
             moves = self._agenda(expansions // 2, deadline)
             if moves is not None:
-                moves = self._shortened(moves, is_goal, self.start)
-                return self._plan(moves, "greedy", False, is_goal), None
+                return self._shortened(moves, is_goal, self.start), None
             expansions -= self.expanded - before
         system = planner.step_system(self.disabled)
         relaxed = planner.relaxed(self.disabled).goal(goal)
@@ -280,8 +305,7 @@ class PortfolioRun:
                        max_expansions=expansions, deadline=deadline, stop=self.budget.stop)
         self._count(found)
         if found.moves is not None:
-            moves = self._shortened(found.moves, is_goal, self.start)
-            return self._plan(moves, "greedy", False, is_goal), None
+            return self._shortened(found.moves, is_goal, self.start), None
         if found.timed_out:
             return None, None
         if found.end is SearchEnd.DEAD_END:

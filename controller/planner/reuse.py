@@ -7,12 +7,19 @@ the rest of that plan from there is a plan from the start: it is handed back as 
 validated by simulation like every other member's plan. The rest of a shortest plan is a
 shortest plan from where it starts (a shorter one would shorten the whole), so the rest of a
 plan shown minimal is minimal too.
+
+`SearchMemory` keeps what the satisficing member settled per question (start, goal, the request's
+goals, disabled resources, expansion count): a station running orders comes back to the states it planned
+from before (the product reset, the devices home) and asks the same questions each order. The member is
+deterministic given the question, so its remembered answer is the one it would find again; an answer cut
+short by the wall clock is not kept (with more time it may differ).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 from common.model import Predicate
 from common.model.compiled import CompiledModel, State
@@ -21,6 +28,7 @@ from .plans import Plan, moves_of
 from .steps import Move
 
 PLANS_KEPT = 64  # goal sets remembered (a run asks a few dozen)
+SEARCHES_KEPT = 256  # questions remembered (two variants' orders ask a few dozen distinct ones)
 
 Key = tuple[tuple[Predicate, ...], frozenset[str]]  # the goals, the disabled resources
 
@@ -34,6 +42,9 @@ class PlanMemory:
         self.compiled = compiled
         self.kept = kept
         self._plans: OrderedDict[Key, Plan] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._plans)
 
     def remember(self, key: Key, plan: Plan) -> None:
         self._plans[key] = plan
@@ -60,3 +71,52 @@ class PlanMemory:
 
     def clear(self) -> None:
         self._plans.clear()
+
+
+QuestionKey = tuple[State, Predicate, tuple[tuple[str, Predicate], ...], frozenset[str], int, tuple[int, bool]]
+
+
+def question_key(start: State, goal: Predicate, goals: tuple[tuple[str, Predicate], ...], disabled: frozenset[str],
+                 expansions: int, races: tuple[int, bool]) -> QuestionKey:
+    """`goal`: what is searched for (the request's goals, or a subset of them when looking for the smallest
+    unreachable one); `goals`: the request's by name in their order (the goal agenda follows it); the
+    expansions the member may use; and the races learnt in time so far (`steps.TimedRaces.version`): a race
+    learnt since changes what the search may answer."""
+    return start, goal, goals, frozenset(disabled), expansions, races
+
+
+@dataclass(frozen=True)
+class SearchedAnswer:
+    """What the satisficing member settled: its moves, or why the goals are unreachable, or neither (it ran
+    out of its expansions), with the work it counted."""
+
+    moves: tuple[Move, ...] | None
+    proof: str | None
+    expanded: int
+    generated: int
+
+
+class SearchMemory:
+    """The satisficing member's answers by question, the newest `kept` (bounded over a shift)."""
+
+    def __init__(self, kept: int = SEARCHES_KEPT) -> None:
+        self.kept = kept
+        self._answers: OrderedDict[QuestionKey, SearchedAnswer] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._answers)
+
+    def remember(self, key: QuestionKey, answer: SearchedAnswer) -> None:
+        self._answers[key] = answer
+        self._answers.move_to_end(key)
+        if len(self._answers) > self.kept:
+            self._answers.popitem(last=False)
+
+    def recall(self, key: QuestionKey) -> SearchedAnswer | None:
+        found = self._answers.get(key)
+        if found is not None:
+            self._answers.move_to_end(key)
+        return found
+
+    def clear(self) -> None:
+        self._answers.clear()

@@ -95,6 +95,10 @@ class RaceCheck:
                 self._watch[t.number] = tuple(pairs)
                 self._relevant[t.number] = operator.itemgetter(*sorted(relevant))
 
+    def watched(self, t: CompiledTransition) -> RacePairs:
+        """The (effect t may start, its rivals) pairs `races` checks for deliberate `t` (the PDDL export needs them)."""
+        return self._watch.get(t.number, ())
+
     def races(self, state: State, t: CompiledTransition) -> bool:
         pairs = self._watch.get(t.number)
         if pairs is None:
@@ -135,6 +139,12 @@ class TimedRaces:
 
     def __bool__(self) -> bool:
         return bool(self._due_before) and not self.suspended
+
+    @property
+    def version(self) -> tuple[int, bool]:
+        """Changes whenever a race is learnt or the known ones are suspended: what searches remembered by
+        question (reuse.SearchMemory) are keyed on. Races are only ever added."""
+        return sum(map(len, self._due_before.values())), self.suspended
 
     @contextlib.contextmanager
     def suspended_while(self) -> Iterator[None]:

@@ -49,11 +49,14 @@ CREATE TABLE IF NOT EXISTS orders (
     queued_at REAL NOT NULL,
     started_at REAL,
     finished_at REAL,
-    archive TEXT
+    archive TEXT,
+    carried TEXT
 );
 CREATE INDEX IF NOT EXISTS orders_by_state ON orders(state, id);
 """
-_COLUMNS = "id, product_id, variant, parameters, state, origin, queued_at, started_at, finished_at"
+_COLUMNS = "id, product_id, variant, parameters, state, origin, queued_at, started_at, finished_at, archive, carried"
+# A book written before a line's orders carried the product's state: the column it lacks.
+_ADDED_COLUMNS = {"carried": "ALTER TABLE orders ADD COLUMN carried TEXT"}
 
 
 class OrderError(ValueError):
@@ -87,20 +90,27 @@ class OrderBook:
         self.model = model
         self.clock = clock
         self.db.executescript(SCHEMA)
+        present = {str(row[1]) for row in self.db.execute("PRAGMA table_info(orders)")}
+        for column, alter in _ADDED_COLUMNS.items():
+            if column not in present:
+                self.db.execute(alter)
 
     # --- the queue ---------------------------------------------------------------------------
     def add(self, variant: str, *, product_id: str = "", parameters: Mapping[str, ParameterValue] | None = None,
-            origin: str = "", count: int = 1) -> list[Order]:
-        """Queue `count` orders of `variant`; the product ids are generated unless one order is given its own."""
+            origin: str = "", count: int = 1, carried: Mapping[str, Value] | None = None) -> list[Order]:
+        """Queue `count` orders of `variant`; the product ids are generated unless one order is given its own.
+        `carried` (one order): the product's state from the previous station, kept with the order as it is."""
         parameters = dict(parameters or {})
         self._check(variant, parameters, count, product_id)
+        if carried and count != 1:
+            raise OrderError("a carried product state belongs to one product: give it with count 1")
         now = self.clock()
         with self.db:
             self.db.execute("BEGIN")
             (last,) = self.db.execute("SELECT COALESCE(MAX(id), 0) FROM orders").fetchone()
             ids = range(last + 1, last + 1 + count)
             for order_id in ids:
-                self._insert(order_id, variant, product_id, parameters, origin, now)
+                self._insert(order_id, variant, product_id, parameters, origin, now, carried)
         return [self.get(order_id) for order_id in ids]
 
     def add_plan(self, plan: ProductionPlan) -> list[Order]:
@@ -118,15 +128,24 @@ class OrderBook:
         return [self.get(order_id) for order_id in ids]
 
     def _insert(self, order_id: int, variant: str, product_id: str, parameters: Mapping[str, ParameterValue],
-                origin: str, now: float) -> None:
+                origin: str, now: float, carried: Mapping[str, Value] | None = None) -> None:
         product = product_id or f"{self.model.name}-{order_id:05d}"
         try:
             self.db.execute(
-                "INSERT INTO orders(id, product_id, variant, parameters, state, origin, queued_at) "
-                "VALUES(?, ?, ?, ?, ?, ?, ?)",
-                (order_id, product, variant, json.dumps(dict(parameters)), OrderState.QUEUED.value, origin, now))
+                "INSERT INTO orders(id, product_id, variant, parameters, state, origin, queued_at, carried) "
+                "VALUES(?, ?, ?, ?, ?, ?, ?, ?)",
+                (order_id, product, variant, json.dumps(dict(parameters)), OrderState.QUEUED.value, origin, now,
+                 json.dumps(dict(carried)) if carried else None))
         except sqlite3.IntegrityError:
             raise OrderError(f"product {product!r} already has an order") from None
+
+    def put(self, order: Order) -> None:
+        """Store `order` as it is (its id, state and times): a replay rebuilds a recorded run's orders."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self._insert(order.id, order.variant, order.product_id, order.parameters, order.origin, order.queued_at)
+            self.db.execute("UPDATE orders SET state=?, started_at=? WHERE id=?",
+                            (order.state.value, order.started_at, order.id))
 
     def cancel(self, order_id: int) -> Order:
         order = self.get(order_id)
@@ -147,6 +166,12 @@ class OrderBook:
             raise OrderError(f"no order {order_id}")
         return _from_row(row)
 
+    def orders_of(self, product_ids: Sequence[str]) -> list[Order]:
+        """The orders of these products in any state, however old (a line controller asks for its products')."""
+        rows = self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE product_id IN (SELECT value FROM json_each(?)) "
+                               "ORDER BY id", (json.dumps(list(product_ids)),)).fetchall()
+        return [_from_row(row) for row in rows]
+
     def orders(self, *, include_finished: bool = False) -> list[Order]:
         """The running order and the queue in order; with `include_finished` first the newest finished ones."""
         rows = []
@@ -157,6 +182,11 @@ class OrderBook:
         rows += self.db.execute(f"SELECT {_COLUMNS} FROM orders WHERE state IN (?, ?) ORDER BY id",
                                 (OrderState.RUNNING.value, OrderState.QUEUED.value)).fetchall()
         return [_from_row(row) for row in rows]
+
+    def done_orders(self) -> list[Order]:
+        """Every done order, oldest first: read from the file, kept nowhere in memory."""
+        return [_from_row(row) for row in self.db.execute(
+            f"SELECT {_COLUMNS} FROM orders WHERE state=? ORDER BY id", (OrderState.DONE.value,))]
 
     def current(self) -> Order | None:
         """The running order: its product is on the station."""
@@ -255,11 +285,16 @@ class OrderBook:
 
 
 def _from_row(row: Sequence[object]) -> Order:
-    order_id, product_id, variant, parameters, state, origin, queued_at, started_at, finished_at = row
+    order_id, product_id, variant, parameters, state, origin, queued_at, started_at, finished_at, archive, carried = row
     assert isinstance(parameters, str)
     return Order(id=int(str(order_id)), product_id=str(product_id), variant=str(variant),
                  parameters=json.loads(parameters), state=OrderState(str(state)), origin=str(origin),
-                 queued_at=float(str(queued_at)), started_at=_time(started_at), finished_at=_time(finished_at))
+                 queued_at=float(str(queued_at)), started_at=_time(started_at), finished_at=_time(finished_at),
+                 archive=_values(archive), carried=_values(carried))
+
+
+def _values(column: object) -> dict[str, Value]:
+    return {} if column is None else dict(json.loads(str(column)))
 
 
 def _time(value: object) -> float | None:

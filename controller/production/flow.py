@@ -4,7 +4,11 @@ The control loop (controller/loop.py) asks it after each tick whether the runnin
 and whether the next may start; the book commits each transition (controller/production/book.py),
 this keeps what the loop and the shells need between ticks: the running order (the book is asked
 again only when an order starts or finishes, not at every tick), the core-clock time it started, and
-each finished order's throughput for the lines `hubctl up` prints and the status carries.
+the newest finished orders' throughput for the lines `hubctl up` prints and the status carries.
+
+Nothing here grows with the number of orders (a shift runs thousands): the figures of the last
+`RECENT_FIGURES` orders are kept, the run's figures are read from the book when asked (every order's
+times are in its SQLite table, as the recording has every order's events).
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from common.wire.orders import Order, OrderState
 
 from .book import OrderBook
 from .throughput import OrderThroughput, OrderWindow, RunThroughput, order_throughput, run_throughput
+
+RECENT_FIGURES = 50  # finished orders whose throughput (busy and waiting times) is kept in memory
 
 
 @dataclass(frozen=True)
@@ -34,7 +40,7 @@ class OrderFlow:
         self.book = book
         self.current: Order | None = book.current()  # a restarted controller goes on with the order it finds
         self.requested: tuple[str, ...] = () if self.current is None else book.requested(self.current)
-        self.finished: list[OrderThroughput] = []  # this controller's, for the run's figures
+        self.finished: deque[OrderThroughput] = deque(maxlen=RECENT_FIGURES)  # the newest, with their busy times
         self.recent: deque[OrderDone] = deque(maxlen=RECENT_ORDERS)
         self.done = book.count(OrderState.DONE)
 
@@ -68,11 +74,13 @@ class OrderFlow:
         return self.current is None and self.book.queued() == 0
 
     def run_figures(self) -> RunThroughput:
-        """Engines per hour and cycle times of the orders this controller finished, over the span from the
-        first one's start to the last one's end."""
-        if not self.finished:
+        """Engines per hour and cycle times of the book's done orders, on its clock, over the span from the first
+        one's start to the last one's end."""
+        done = [OrderThroughput(o.id, o.product_id, o.variant, o.started_at or 0.0, o.finished_at or 0.0, {})
+                for o in self.book.done_orders()]
+        if not done:
             return run_throughput([], 0.0)
-        return run_throughput(self.finished, self.finished[-1].end - self.finished[0].start)
+        return run_throughput(done, max(o.end for o in done) - min(o.start for o in done))
 
     def info(self) -> ProductionInfo:
         return ProductionInfo(current=self.current, queued=self.book.queued(), done=self.done,

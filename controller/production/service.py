@@ -73,9 +73,11 @@ class OrdersService:
     def _decide(self, request: OrdersRequest) -> OrdersReply:
         if request.action is OrdersAction.ADD:
             added = self.book.add(request.variant, product_id=request.product_id, parameters=request.parameters,
-                                  origin=request.origin, count=request.count)
+                                  origin=request.origin, count=request.count, carried=request.carried)
             return OrdersReply(accepted=True, reason=f"{len(added)} queued; {self.book.queued()} in the queue",
                                orders=added)
         if request.action is OrdersAction.CANCEL:
             return OrdersReply(accepted=True, orders=[self.book.cancel(request.order)])
+        if request.product_ids:
+            return OrdersReply(accepted=True, orders=self.book.orders_of(request.product_ids))
         return OrdersReply(accepted=True, orders=self.book.orders(include_finished=request.include_finished))

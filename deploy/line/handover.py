@@ -2,14 +2,17 @@
 
 Each round, for every station:
 
-1. its orders are listed (`{station}/ctl/orders`, list with the finished ones): a visit whose order the
-   station reports done is marked done, which makes the product's next visit ready;
+1. the orders of the products it has or is to get are listed (`{station}/ctl/orders`, list filtered by
+   product id, in any state however old: a station that finished many other orders since, during a long
+   outage, still reports these): a visit whose order the station reports done is marked done with the
+   product's state the station archived, which makes the product's next visit ready and what it carries;
 2. a ready visit's product is looked for in that list first, and only if the station has no order for it
    is one added, with the product's id. The station's order book refuses a second order for a product id,
    and the lookup comes first, so a handover repeated after any restart (of this controller before it
    committed, of the station's controller, of a router that lost the reply) finds the order there and adds
    nothing: nothing is lost (the visit stays pending or added until the station says otherwise) and
-   nothing is done twice.
+   nothing is done twice. The order added carries the product's state as the previous station archived
+   it (`Order.carried`): the next station keeps it with the order.
 
 A station that does not answer is unreachable: its handovers wait, the others go on.
 """
@@ -55,7 +58,8 @@ class Handover:
         ready = self.store.ready()
         stations = sorted({v.station for v in (*added, *ready)})
         for station in stations:
-            listing = await self.link.ask(station, OrdersRequest(action=OrdersAction.LIST, include_finished=True,
+            products = sorted({v.product_id for v in (*added, *ready) if v.station == station})
+            listing = await self.link.ask(station, OrdersRequest(action=OrdersAction.LIST, product_ids=products,
                                                                  origin=ORIGIN))
             if listing is None or not listing.accepted:
                 result.unreachable.add(station)
@@ -64,7 +68,7 @@ class Handover:
             for visit in (v for v in added if v.station == station):
                 order = orders.get(visit.product_id)
                 if order is not None and order.state is OrderState.DONE:
-                    self.store.mark_done(visit, order.started_at, order.finished_at)
+                    self.store.mark_done(visit, order.started_at, order.finished_at, order.archive)
                     result.done.append(visit)
                     log.info("%s left %s (order %d)", visit.product_id, station, order.id)
                 elif order is not None and order.state is OrderState.CANCELLED:
@@ -87,7 +91,7 @@ class Handover:
                      visit.station)
             return True
         request = OrdersRequest(action=OrdersAction.ADD, variant=visit.variant, product_id=visit.product_id,
-                                parameters=dict(visit.carried), origin=ORIGIN)
+                                carried=dict(visit.carried), origin=ORIGIN)
         reply = await self.link.ask(visit.station, request)
         if reply is None:
             result.unreachable.add(visit.station)

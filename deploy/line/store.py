@@ -13,7 +13,7 @@ import enum
 import json
 import sqlite3
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,7 +55,8 @@ class Visit:
     added_at: float | None
     started_at: float | None  # on the station's clock, as its book reports
     finished_at: float | None
-    carried: dict[str, ParameterValue]  # what the product brings to this station (the parameters of its order)
+    # The product's state as the previous station archived it, which its order here carries ({} at the first)
+    carried: dict[str, ParameterValue]
 
 
 class LineStore:
@@ -110,13 +111,20 @@ class LineStore:
                             (VisitState.ADDED.value, station_order, self.clock(), json.dumps(carried),
                              visit.product_id, visit.step, VisitState.PENDING.value))
 
-    def mark_done(self, visit: Visit, started_at: float | None, finished_at: float | None) -> None:
+    def mark_done(self, visit: Visit, started_at: float | None, finished_at: float | None,
+                  archive: Mapping[str, ParameterValue] | None = None) -> None:
+        """The station finished the product; in the same commit its archived state becomes what the product
+        carries to its next visit."""
         with self.db:
             self.db.execute("BEGIN")
-            self.db.execute("UPDATE visits SET state=?, started_at=?, finished_at=? "
-                            "WHERE product_id=? AND step=? AND state=?",
-                            (VisitState.DONE.value, started_at, finished_at, visit.product_id, visit.step,
-                             VisitState.ADDED.value))
+            changed = self.db.execute("UPDATE visits SET state=?, started_at=?, finished_at=? "
+                                      "WHERE product_id=? AND step=? AND state=?",
+                                      (VisitState.DONE.value, started_at, finished_at, visit.product_id,
+                                       visit.step, VisitState.ADDED.value)).rowcount
+            if changed:
+                self.db.execute("UPDATE visits SET carried=? WHERE product_id=? AND step=? AND state=?",
+                                (json.dumps(dict(archive or {})), visit.product_id, visit.step + 1,
+                                 VisitState.PENDING.value))
 
     def products_left(self, last_step: int) -> tuple[int, int]:
         """(products that left the last station, products)."""

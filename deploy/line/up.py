@@ -27,14 +27,16 @@ from common.line.config import LineConfig, load_line
 from common.wire.keys import Keys
 from common.wire.messages import MessageError
 from controller.console.statusview import StatusFollower
+from controller.overview.site import SiteFeed
 from deploy.local.done_once import DoneOnce, check_done_once, run_recordings
 from deploy.local.supervisor import Say, Supervisor
 from deploy.remote.restart_policy import UP_RESTART, RestartPolicy
 
 from .certs import line_certs
-from .overview import Overview, StationRow, StationState, overview_text
+from .overview import Overview, StationRow, StationState, overview_text, site_picture
 from .processes import line_controller_child, router_child, station_children
 from .security import line_controller_tls
+from .sitepage import DEFAULT_BIND, served
 from .store import VisitState, open_read_only
 
 RUN_DIR = Path("var/line")
@@ -61,6 +63,7 @@ class LineOptions:
     overview_every_s: float = 10.0
     record: bool = True
     kills: tuple[Kill, ...] = ()
+    overview_bind: str | None = DEFAULT_BIND  # the overview's web page (port 0: any free one); None: no page
 
 
 @dataclass
@@ -78,7 +81,7 @@ class LineResult:
         return self.finished and not any(d.redone() for d in self.done_once.values())
 
 
-def _progress(db: Path, route_length: int) -> tuple[int, int, int]:
+def progress(db: Path, route_length: int) -> tuple[int, int, int]:
     """(products that left the first station, the last one, products): from the line controller's file."""
     if not db.exists():
         return 0, 0, 0
@@ -141,11 +144,18 @@ class StationWatch:
 
 async def run_line(options: LineOptions, say: Say = print) -> LineResult:
     line = load_line(options.config)
-    with line_certs(line) as certs:
-        return await _run_line(options, say, line, certs)
+    site = SiteFeed(line.name)
+    async with contextlib.AsyncExitStack() as page:
+        if options.overview_bind is not None:
+            url = await page.enter_async_context(served(site, options.overview_bind, say))
+            if url is not None:
+                say(f"overview page: {url} (read-only)")
+        with line_certs(line) as certs:
+            return await _run_line(options, say, line, certs, site)
 
 
-async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Path | None) -> LineResult:
+async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Path | None,
+                    site: SiteFeed) -> LineResult:
     run_dir = options.run_dir
     began, began_wall = time.monotonic(), time.time()
     station_children_all = [c for name in line.route
@@ -174,8 +184,9 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
         while not stop.is_set():
             now = time.monotonic()
             elapsed = now - began
-            first, last, total = _progress(line.db, len(line.route))
+            first, last, total = progress(line.db, len(line.route))
             result.products_done, result.products = last, total or options.products
+            await site.update(site_picture(line.name, overview.rows(now), last, result.products))
             for row in overview.rows(now):
                 _report_change(row, headlines, result, elapsed, say)
             if total and last == total:
@@ -209,6 +220,7 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
     result.elapsed_s = time.monotonic() - began
     result.restarts = {**routers.restarts, **processes.restarts}
     result.last_rows = overview.rows(time.monotonic())
+    await site.update(site_picture(line.name, result.last_rows, result.products_done, result.products))
     say(overview_text(result.last_rows, result.products_done, result.products, result.elapsed_s))
     say(f"{'finished' if result.finished else 'NOT finished'}: {result.products_done}/{result.products} products "
         f"left the last station in {result.elapsed_s:.1f} s; restarts: "

@@ -54,7 +54,7 @@ class RunSummary:
     reason: str = ""
     cycle: CycleReport | None = None  # cycle time, the bound, each resource's idle time
     log: list[str] = field(default_factory=list)  # the event log (its newest entries), as text
-    orders: list[OrderThroughput] = field(default_factory=list)  # the orders finished, when running orders
+    orders: list[OrderThroughput] = field(default_factory=list)  # the newest orders finished (flow.RECENT_FIGURES)
     throughput: RunThroughput | None = None  # engines per hour and cycle times, when running orders
 
     @property

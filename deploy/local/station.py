@@ -363,7 +363,7 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
     if options.record and (chaos is not None or any(supervisor.restarts.values())):
         done_once = check_done_once(run_recordings(options.config, config.station.name, began_wall - 1.0))
         say(done_once.text())
-        if done_once.redone():
+        if done_once.failed():
             result = 1
     recording = recording_since(options.config, began_wall - 1.0) if options.record else None
     if recording is not None:

@@ -52,6 +52,7 @@ from pathlib import Path
 
 from common.config.hubs_toml import HubConfig, StationConfig
 from common.config.modes import DeviceMode, SecurityMode
+from common.line.config import LineConfig
 
 from .layout import CONTROLLER_UNIT, Layout, hub_unit_name
 from .restart_policy import unit_restart_policy
@@ -246,6 +247,45 @@ def router_unit(line_toml: str, router: str, *, secured: bool, base: str = "/opt
     ]
     return Unit(name, _render(f"statehub Zenoh router {router} of the line", service, ROUTER_LIMITS,
                               systemd_version))
+
+
+# One round asks every station in turn, each up to the line controller's ASK_TIMEOUT_S when it does not
+# answer: a line with many stations unreachable at once has long rounds, and a round is one watchdog ping.
+LINE_CONTROLLER_LIMITS = Limits(watchdog="60s", memory="512M", tasks=64)
+LINE_CONTROLLER_UNIT = "statehub-line-controller.service"
+STATE_ROOT = Path("/var/lib")
+
+
+def line_controller_unit(line: LineConfig, line_toml: str, *, base: str = "/opt/statehub/line",
+                         systemd_version: int = DEFAULT_SYSTEMD) -> Unit:
+    """The line controller (deploy/line/controller.py), the routers' template; its release under `base`/current.
+
+    `line` is the line.toml as loaded here, `line_toml` where it lies on the target: `[line] db`, relative to
+    it, is where the controller keeps every handover. Under /var/lib systemd creates that directory for the
+    service user (`StateDirectory=`); elsewhere (the default `var/line.sqlite` beside line.toml) the unit may
+    write there (`ReadWritePaths=`), and the directory must exist and be the service user's."""
+    current = f"{base}/current"
+    db = line.db if line.db.is_absolute() and not line.db.is_relative_to(line.path.parent) else \
+        Path(line_toml).parent / line.db.relative_to(line.path.parent)
+    if db.is_relative_to(STATE_ROOT):
+        storage = f"StateDirectory={db.parent.relative_to(STATE_ROOT)}"
+    else:
+        storage = f"ReadWritePaths={db.parent}"
+    secured = line.security.mode is SecurityMode.TLS
+    certs = ["--certs", f"{base}/certs"] if secured else []
+    command = _exec(f"{current}/venv/bin/python", "-P", "-m", "deploy.line.controller", "--config", line_toml,
+                    *certs)
+    service = [
+        f"User={SERVICE_USER}",
+        f"Group={SERVICE_USER}",
+        storage,
+        f"ExecStart={command}",
+        f"SyslogIdentifier={LINE_CONTROLLER_UNIT.removesuffix('.service')}",
+        "PrivateDevices=yes",
+        "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK",
+    ]
+    return Unit(LINE_CONTROLLER_UNIT, _render(f"statehub line controller of line {line.name}", service,
+                                              LINE_CONTROLLER_LIMITS, systemd_version))
 
 
 def station_units(config: StationConfig, layout: Layout = ON_TARGET,

@@ -24,6 +24,7 @@ start, mirrors) and the resources held until their mirror comes (controller/comm
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,6 +35,7 @@ from common.model import Model
 from common.model.compiled import CompiledModel
 from common.resources import durations_of
 from common.stations import load_model
+from common.wire.ctl import OrderFinished
 from controller.control import ControlCore, PlanRequest
 from controller.loop import ControlLoop
 from controller.planner import Budget, NoPlan, Plan, PlanStats
@@ -61,11 +63,13 @@ from controller.recording.schema import (
 from controller.stack import build_controller_stack
 from controller.timed_check import Verdict
 
+from .orders import ORDER_EVENTS, RECORDS_READ, replay_flow
+
 DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
                        RecordKind.EVENT})
 # The event log's entries the core decides; the others are the service's notes (hub alive, mirrors missing).
 CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request", "forbidden_state",
-                         "forbidden_state_cleared"})
+                         "forbidden_state_cleared", *ORDER_EVENTS})
 
 
 class ReplayError(ValueError):
@@ -100,10 +104,13 @@ class ReplayResult:
 class ListSink:
     def __init__(self) -> None:
         self.records: list[Record] = []
+        self.loaded: list[RestoreRecord] = []  # the values the replayed loop loaded, in order
 
     def put(self, t: float, kind: RecordKind, key: str, data: Any) -> None:
         if kind in DECISIONS:
             self.records.append(Record(t, kind, key, data))
+        elif isinstance(data, RestoreRecord):
+            self.loaded.append(data)
 
     def ingested(self, t: float, changed: dict[str, Any], hub_states: Any) -> None:
         pass  # an input, not a decision
@@ -122,6 +129,8 @@ def is_decision(record: Record) -> bool:
 def compared(record: Record) -> tuple[Any, ...]:
     """What must be the same in a recorded and a replayed decision."""
     data = record.data
+    if isinstance(data, OrderFinished):  # not its cycle: live, the order book times it on the wall clock
+        return record.kind, record.key, data.order, data.product_id, data.variant
     if isinstance(data, PlanRecord):  # not the planner's wall time, member or counts
         plan = (data.answer, data.taken, data.goals, data.found, data.steps, data.no_plan, data.unreachable,
                 data.proven, data.reason, data.detail)
@@ -158,6 +167,10 @@ class Replayer:
         self.loop = ControlLoop(self.core, RunRecorder(self.core, self.clock, self.sink),
                                 (r.name for r in self.model.resources), self.clock, durations=durations)
         self.loop.request(meta.requested)
+        self.loop.run_orders(replay_flow(self.model, self.clock, run.events(kinds=RECORDS_READ)))
+        # The values the replayed loop loaded itself as it finished and started orders: their recorded
+        # `restore` records are its decisions' traces, not inputs to apply again.
+        self.own_loads: deque[RestoreRecord] = deque()
         self.requests = self.loop.requests()
         self.unhealthy: dict[str, str] = {}
         self.held: frozenset[str] = frozenset()  # resources held until their mirror comes (controller/command_hold.py)
@@ -220,7 +233,9 @@ class Replayer:
             self.unhealthy.pop(record.key, None)
 
     def _tick(self, _record: Record) -> None:
-        self.loop.tick(self.unhealthy, self.held)
+        loaded = len(self.sink.loaded)
+        if self.loop.tick(self.unhealthy, self.held).orders:
+            self.own_loads.extend(self.sink.loaded[loaded:])
 
     def _command(self, record: Record) -> None:
         # The controller also sends at its command rate, between ticks: a value that changed since the last
@@ -234,6 +249,9 @@ class Replayer:
 
     def _restore(self, record: Record) -> None:
         data = record.data_as(RestoreRecord)
+        if self.own_loads and self.own_loads[0].values == data.values:
+            self.own_loads.popleft()
+            return
         self.core.load(data.values)
 
     def _request(self, record: Record) -> None:

@@ -5,7 +5,9 @@ Prints, side by side in one run:
 1. a row per planner member on each case: the portfolio's first plan (satisficing,
    what the controller gets first) and its final plan (after A* tried to improve it,
    marked minimal when shown), A* alone, the symbolic member alone, and breadth-first
-   (given up at a state limit). Cases: the reference station (`engine_assembly`, with
+   (given up at a state limit), and Fast Downward on the task exported to PDDL (docs/pddl.md), its
+   satisficing search (greedy, FF) and its optimal one (A* with h^max; its CPU time and that of its
+   processes, the encoding and the translation included). Cases: the reference station (`engine_assembly`, with
    its synthesized supervisor) — `TightenBolt7` with the filter tool at home, 24 bolts
    from the frame placed, the `ParkNutrunner + AttachFilterTool + 3 filters + 2 pipes`
    goal set, `RobotHome` from the state where the old planner stalled
@@ -27,7 +29,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -39,6 +43,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from common.model import Model, OperationState, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
 from common.stations import engine_assembly, load_model
+from controller.pddl import encode
+from controller.pddl.downward import Search, solve
 from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
 from controller.planner.policy import VIRTUAL_BUDGET
 from controller.planner.search import astar
@@ -147,11 +153,37 @@ def bfs_alone(case: Case, limit_states: int) -> Outcome:
     return Outcome(seconds, str(len(result.steps)), "yes", str(result.stats.generated))
 
 
+def cpu_with_children() -> float:
+    """This process's CPU time and that of its finished children (Fast Downward runs as two of them)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+def fast_downward(search: Search) -> Callable[[Planner, Case, float], Outcome]:
+    """Fast Downward on the exported task (docs/pddl.md): encoding, writing, translating and searching."""
+
+    def run(planner: Planner, case: Case, limit: float) -> Outcome:
+        began = cpu_with_children()
+        task = encode(case.compiled, case.start, all_of(*case.goals.values()), case.forbidden)
+        try:
+            [answer] = solve(task, (search,), timeout=limit)
+        except subprocess.TimeoutExpired:
+            return Outcome(cpu_with_children() - began, f">{limit:.0f} s", "-", "-")
+        seconds = cpu_with_children() - began
+        if answer.plan is None:
+            return Outcome(seconds, "none", "-", "-")
+        return Outcome(seconds, str(len(answer.plan)), "yes" if search is Search.OPTIMAL else "-", "-")
+
+    return run
+
+
 MEMBERS: list[tuple[str, Callable[[Planner, Case, float], Outcome]]] = [
     ("portfolio: first plan", first_plan),
     ("portfolio: final plan", final_plan),
     ("A* alone", astar_alone),
     ("symbolic alone", symbolic_alone),
+    ("Fast Downward: satisficing", fast_downward(Search.SATISFICING)),
+    ("Fast Downward: optimal", fast_downward(Search.OPTIMAL)),
 ]
 
 

@@ -1,0 +1,120 @@
+"""Fast Downward on an exported task, and its plan read back as statehub moves.
+
+Fast Downward comes from the PyPI wheel `up-fast-downward` (the planner binary inside), a test
+dependency: statehub never needs it to run, only to be checked against an independent planner.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+from controller.planner.steps import Move
+
+from .encoding import Task
+from .writer import Flavour, render
+
+
+class Search(Enum):
+    """Search configurations that accept derived predicates (lm-cut and most others refuse them).
+
+    hmax is admissible here: the encoding's derived predicates occur only positively, so the delete
+    relaxation with axioms is a relaxation; A* with it finds shortest plans."""
+
+    OPTIMAL = "astar(hmax())"
+    BLIND = "astar(blind())"  # optimal too, no heuristic: the cross-check of OPTIMAL on small tasks
+    SATISFICING = "lazy_greedy([ff()], preferred=[ff()])"
+
+
+class DownwardError(RuntimeError):
+    """Fast Downward failed for a reason other than finding no plan (input error, time or memory)."""
+
+
+@dataclass(frozen=True)
+class Answer:
+    plan: tuple[str, ...] | None  # action names; None: proven unsolvable
+    moves: tuple[Move, ...] | None
+
+
+UNSOLVABLE = (10, 11)  # TRANSLATE_UNSOLVABLE, SEARCH_UNSOLVABLE (driver/returncodes.py)
+
+
+def binaries() -> Path:
+    """The directory of Fast Downward's search binary and its translator package, as the wheel installs them."""
+    spec = importlib.util.find_spec("up_fast_downward")
+    if spec is None or spec.origin is None:
+        raise DownwardError("Fast Downward is not installed: pip install up-fast-downward (in statehub's test extras)")
+    return Path(spec.origin).parent / "downward" / "builds" / "release" / "bin"
+
+
+def _call(command: list[str], workdir: Path, timeout: float, what: str, stdin: Path | None = None) -> int:
+    # The components are called as the wheel's driver (fast-downward.py) calls them, without the driver's own
+    # interpreter start per call: on a small task those starts are most of the time.
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(binaries()),
+                                                                                os.environ.get("PYTHONPATH"))))}
+    with open(stdin) if stdin is not None else contextlib.nullcontext() as source:
+        done = subprocess.run(command, cwd=workdir, capture_output=True, text=True, timeout=timeout, check=False,
+                              env=environment, stdin=source)
+    if done.returncode not in (0, *UNSOLVABLE):
+        tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
+        raise DownwardError(f"fast-downward exited {done.returncode} on {what}:\n{tail}")
+    return done.returncode
+
+
+def run_files(domain: Path, problem: Path, searches: tuple[Search, ...], workdir: Path,
+              timeout: float = 300.0) -> list[tuple[str, ...] | None]:
+    """Per search, the plan (action names) Fast Downward finds for the files, or None when it shows there is none.
+    The task is translated once (the translator, in Python, is most of the time on a small task)."""
+    sas = workdir / "output.sas"
+    # No invariant synthesis (mutex groups): on a station it is 90 % of the translator's time (37 s of 41 s CPU
+    # on the reference station), and the searches used here do not need the groups (binary variables instead).
+    translate = [sys.executable, "-m", "fast_downward.translate", str(domain), str(problem), "--sas-file", str(sas),
+                 "--invariant-generation-max-candidates", "0"]
+    if _call(translate, workdir, timeout, str(problem)):
+        return [None for _ in searches]
+    plans: list[tuple[str, ...] | None] = []
+    for search in searches:
+        plan_file = workdir / f"plan-{search.name.lower()}"
+        command = [str(binaries() / "downward"), "--search", search.value, "--internal-plan-file", str(plan_file)]
+        code = _call(command, workdir, timeout, f"{problem} ({search.value})", stdin=sas)
+        plans.append(None if code else read_plan(plan_file.read_text()))
+    return plans
+
+
+def read_plan(text: str) -> tuple[str, ...]:
+    """Action names of a plan file: one `(name)` a line; `;` starts a comment (the cost line)."""
+    names = []
+    for line in text.splitlines():
+        line = line.split(";", 1)[0].strip()
+        if line:
+            names.append(line.strip("()").split()[0].lower())
+    return tuple(names)
+
+
+def solve(task: Task, searches: tuple[Search, ...], timeout: float = 300.0) -> list[Answer]:
+    """Write the task (derived predicates), run Fast Downward with each search on it and read each plan back as
+    (transition number, outcome) moves."""
+    domain_text, problem_text = render(task, Flavour.AXIOMS)
+    with tempfile.TemporaryDirectory(prefix="statehub-pddl-") as directory:
+        workdir = Path(directory)
+        (workdir / "domain.pddl").write_text(domain_text)
+        (workdir / "problem.pddl").write_text(problem_text)
+        plans = run_files(workdir / "domain.pddl", workdir / "problem.pddl", searches, workdir, timeout)
+    moves = task.moves
+    answers = []
+    for plan in plans:
+        if plan is None:
+            answers.append(Answer(None, None))
+            continue
+        unknown = [name for name in plan if name not in moves]
+        if unknown:
+            raise DownwardError(f"the plan names action {unknown[0]!r}, not an action of the task")
+        answers.append(Answer(plan, tuple(moves[name] for name in plan)))
+    return answers
