@@ -42,6 +42,7 @@ that the controller can name it if the same thing happens again and again.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -85,11 +86,7 @@ class PlanProgress:
         # Each step's written values read at once (`observed` is asked of every step left at every tick).
         self._post_read = [_reader(tuple(i for i, _ in post)) for post in self.post]
         self._post_values = [_reader(tuple(range(len(post))))(tuple(v for _, v in post)) for post in self.post]
-        self.ordering = order(compiled, plan, self.execution)
-        self.depends = self.ordering.depends
-        self.prior_writers = self.ordering.prior_writers
-        # Earlier automatic and effect steps that must see the old values of what a step writes.
-        self.observers_before = self.ordering.observers_before
+        self.reorder(compiled, self.execution)
         # The steps each stage looks at, in plan order: a tick walks them several times, and reading each
         # step's kind through its transition was a tenth of an in-process run.
         self.watched = tuple(j for j, t in enumerate(self.transitions) if t.kind is not TransitionKind.DELIBERATE)
@@ -108,6 +105,18 @@ class PlanProgress:
         self.held_since: dict[int, float] = {}  # deliberate steps held for a due effect, since when
         self.due: dict[int, State] = {}  # effect steps next in line, the last state where their guard held
         self.sent: dict[str, str] = {} if sent is None else sent  # resource -> the last command or automatic on it
+
+    def reorder(self, compiled: CompiledModel, execution: Execution) -> None:
+        """Steps wait for each other in `execution` from now on (the live controller's planner process found
+        the plan under way safe in a looser order than the strictest it began in); what is done stays done."""
+        self.execution = execution
+        if self.plan.execution not in (None, execution):  # a kept rest of it runs in the same order
+            self.plan = dataclasses.replace(self.plan, execution=execution)
+        self.ordering = order(compiled, self.plan, execution)
+        self.depends = self.ordering.depends
+        self.prior_writers = self.ordering.prior_writers
+        # Earlier automatic and effect steps that must see the old values of what a step writes.
+        self.observers_before = self.ordering.observers_before
 
     @property
     def complete(self) -> bool:

@@ -46,22 +46,15 @@ from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predic
 from .engine import PlanProgress, TickResult
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
-from .planner.plans import Execution, PlanStep
+from .planner.plans import Execution
 from .planner.policy import solve_goals
-from .planner.reuse import memory_key
 from .production.flow import OrderFlow
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
-from .timed_check import TimedCheck, TimingRefusal
+from .timed_check import STRICTEST, Revalidate, TimedCheck, TimingRefusal, Verdict, learn_race, revalidation
 
 NOT_HELD: frozenset[str] = frozenset()
-# A plan the engine's own order breaks at some timing runs in the first stricter order none breaks.
-STRICTER = {
-    Execution.PARTIAL_ORDER: (Execution.TRACE, Execution.SEQUENCE),
-    Execution.TRACE: (Execution.SEQUENCE,),
-    Execution.SEQUENCE: (),
-}
 LEARN_PER_REQUEST = 8  # races learnt from plans refused in time before one request takes what it has
 LEARNT_SEARCH_SHARE = 10  # of the satisficing member's budget, what a search with races learnt may spend
 FINISHED = OperationState.FINISHED.value  # an operation variable's value once it finished
@@ -97,6 +90,7 @@ class ControlLoop:
         self.core = core
         self.timed = None if durations is None else TimedCheck(core.compiled, durations)
         self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
+        self._goals = {name: op.goal for name, op in core.model.operation_by_name.items()}
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
         self.cycle = CycleRecord([r.name for r in core.model.resources])
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
@@ -254,46 +248,43 @@ class ControlLoop:
             self._estimate()
         return taken
 
+    def checked(self, request: PlanRequest, verdict: Verdict) -> bool:
+        """The live controller's planner process checked its first answer to `request` in time after sending it
+        (adopted meanwhile in the strictest order): the plan under way, or the rest of it kept, goes on in the
+        order the verdict allows. True if that is looser than the one it runs in."""
+        self.refusals.extend(verdict.refusals)
+        progress, allowed = self.core.progress, verdict.plan.execution
+        loosened = not (not verdict.passed or allowed is None or progress is None
+                        or request.generation != self.core.generation or progress.execution is not STRICTEST
+                        or allowed is STRICTEST or set(progress.plan.goals) != set(verdict.plan.goals))
+        if loosened:
+            assert progress is not None and allowed is not None
+            progress.reorder(self.core.compiled, allowed)
+        self.recorder.plan(request, verdict.plan, taken=loosened, checked=True)
+        return loosened
+
     def _refusal(self, request: PlanRequest, plan: Plan, execution: Execution) -> TimingRefusal | None:
         if self.timed is None:
             return None
-        goals = {name: self.core.model.operation_by_name[name].goal for name in plan.goals
-                 if name in self.core.model.operation_by_name}
-        planner, disabled = self.core.planner, request.disabled
+        return self.timed.refusal(plan, request.disabled, execution, self._revalidation(request, plan))
 
-        def revalidate(state: tuple[Value, ...], steps: Sequence[PlanStep]) -> Plan | None:
-            return planner.revalidate(state, steps, goals, disabled)
-
-        return self.timed.refusal(plan, disabled, execution, revalidate if goals else None)
+    def _revalidation(self, request: PlanRequest, plan: Plan) -> Revalidate | None:
+        return revalidation(self.core.planner, self._goals, plan, request.disabled)
 
     def _in_time(self, request: PlanRequest, plan: Plan) -> tuple[Plan, TimingRefusal | None]:
         """The plan, to run in the engine's order if no timing of its effects breaks it there, else in the first
-        stricter order none breaks (the nutrunner started only once the operator is told to tighten pipe 2);
-        with the refusal when every order is broken (the plan itself counts on an effect waiting)."""
-        own = self.core.engine.execution
-        refused = self._refusal(request, plan, own)
-        if refused is None:
+        stricter order none breaks; with the refusal when every order is broken (the plan itself counts on an
+        effect waiting). controller/timed_check.py's `TimedCheck.verdict`."""
+        if self.timed is None:
             return plan, None
-        self.refusals.append(refused)
-        for stricter in STRICTER[own]:
-            again = self._refusal(request, plan, stricter)
-            if again is None:
-                return dataclasses.replace(plan, execution=stricter), None
-            self.refusals.append(again)
-            refused = again
-        return dataclasses.replace(plan, execution=Execution.SEQUENCE), refused
+        verdict = self.timed.verdict(plan, request.disabled, self._revalidation(request, plan),
+                                     own=self.core.engine.execution)
+        self.refusals.extend(verdict.refusals)
+        return (plan if not verdict.refusals else verdict.plan), verdict.refusal
 
     def _learn(self, refused: TimingRefusal, request: PlanRequest) -> bool:
         """Forbid the race a refused plan lost for the planning to come; False if nothing new is learnt."""
-        compiled = self.core.compiled
-        victim, due = compiled.by_name.get(refused.transition), compiled.by_name.get(refused.effect)
-        if victim is None or due is None or victim.kind is TransitionKind.AUTOMATIC:
-            return False
-        planner = self.core.planner
-        if not planner.timed_races.forbid(victim, due):
-            return False
-        planner.memory.forget(memory_key(request.goals, request.disabled))  # it remembers the refused plan
-        return True
+        return learn_race(self.core.planner, self.core.compiled, refused, request.goals, request.disabled)
 
     def solve(self, request: PlanRequest) -> Adopted:
         """Plan `request` here and now, within the core's budget (virtual time: counts, not seconds). A plan that

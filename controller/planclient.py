@@ -19,6 +19,7 @@ from .control import PlanRequest
 from .loop import ControlLoop
 from .planner import NoPlan, Plan
 from .planworker import PlannerProcess
+from .timed_check import Verdict
 
 log = logging.getLogger("statehub.controller")
 
@@ -61,6 +62,9 @@ class PlanClient:
         try:
             if self.planner_process is not None:
                 async for answer in self.planner_process.answers(request):
+                    if answer.verdict is not None:
+                        self._checked(request, answer.verdict)
+                        continue
                     if answer.note is not None:
                         self.loop.note(answer.note)
                     if not first_answered.is_set():
@@ -78,6 +82,16 @@ class PlanClient:
                 self._adopt(request, NoPlan(f"planner failed: {type(exc).__name__}: {exc}", tuple(request.goals)))
         finally:
             first_answered.set()
+
+    def _checked(self, request: PlanRequest, verdict: Verdict) -> None:
+        """The timed check's verdict on the first plan, which runs in the strictest order until it comes."""
+        refused = verdict.refusal
+        if refused is not None:
+            log.warning("the plan loses a race in every order (it runs step after step; the planner learns the "
+                        "race for the next plans): %s", refused.text)
+        elif self.loop.checked(request, verdict) and verdict.plan.execution is not None:
+            log.info("plan checked in time: it runs in %s", verdict.plan.execution.value)
+            self.wake()
 
     def _adopt(self, request: PlanRequest, result: Plan | NoPlan | None, note: PlannedAlone | None = None) -> None:
         for event in self.loop.adopt(request, result, note).events:

@@ -10,6 +10,16 @@ A newer request preempts the improvement of an older one: the searches and the t
 look at the request pipe as they go (`preemption.py`) and end at their next safe point, keeping
 every table they had finished and none half built. The first answer is never preempted, so
 every request gets one.
+
+Plans checked in time (controller/timed_check.py), given the station's durations: the check of a plan of
+hundreds of steps takes seconds, which the controller's event loop cannot spare and a first answer must not
+wait for. The first plan goes out at once, to run in the strictest order (`Execution.SEQUENCE`: each step
+after the one before) until its verdict; the worker then checks it, a newer request stopping the check, and
+sends the verdict: the order it is safe in, the controller's own or a stricter one (`ControlLoop.checked`),
+or the race it loses in every order, which the worker's planner learns for the requests to come. An
+improvement goes out only if the controller's own order follows it at every timing. Here rather than in a
+thread of the controller: the check is pure Python and would hold the GIL the tick loop needs; and the
+planner that learns a lost race is this one.
 """
 
 from __future__ import annotations
@@ -20,16 +30,19 @@ import logging
 import multiprocessing
 import threading
 import time
-from collections.abc import AsyncIterator
-from dataclasses import dataclass
+from collections.abc import AsyncIterator, Mapping
+from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
 
+from common.model import Duration, Model
 from common.wire.ctl import PlannedAlone
 
 from .control import PlanRequest
+from .deorder import Execution
 from .planner import NoPlan, Plan, Planner
-from .planner.policy import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, anytime_answers, live_budget
+from .planner.policy import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, anytime_answers, live_budget, solve_goals
 from .preemption import NewerRequest
+from .timed_check import STRICTEST, CheckStopped, TimedCheck, Verdict, learn_race, revalidation
 
 log = logging.getLogger(__name__)
 
@@ -46,12 +59,43 @@ class Limits:
 
 
 @dataclass(frozen=True)
+class Timing:
+    """What the worker checks plans against: each resource's effect durations (common/resources' `durations_of`:
+    the model's, hubs.toml's `delay` over them) and the controller engine's own order."""
+
+    durations: Mapping[str, Duration]
+    execution: Execution = Execution.TRACE
+
+
+@dataclass(frozen=True)
 class Answer:
     generation: int
     result: Plan | NoPlan | None  # None with `final`: nothing more for this request
     note: PlannedAlone | None = None
     final: bool = False
     preempted: bool = False  # with `final`: a newer request ended the improvement of this one
+    verdict: Verdict | None = None  # with no result: the timed check of the request's first plan
+
+
+class InTime:
+    """The worker's timed check: its planner's revalidation of a kept rest, and what a lost race teaches it."""
+
+    def __init__(self, model: Model, planner: Planner, timing: Timing) -> None:
+        self.planner = planner
+        self.check = TimedCheck(planner.compiled, timing.durations, timing.execution)
+        self.goals = {name: op.goal for name, op in model.operation_by_name.items()}
+
+    def verdict(self, plan: Plan, request: PlanRequest, requests: Connection, *, stricter: bool) -> Verdict:
+        """Raises `CheckStopped` when a newer request waits."""
+        return self.check.verdict(plan, request.disabled, revalidation(self.planner, self.goals, plan,
+                                                                       request.disabled),
+                                  requests.poll, stricter=stricter)
+
+    def learn(self, verdict: Verdict, request: PlanRequest) -> None:
+        refused = verdict.refusal
+        if refused is not None and learn_race(self.planner, self.planner.compiled, refused, request.goals,
+                                              request.disabled):
+            log.info("race learnt: %s", refused.text)
 
 
 @dataclass(frozen=True)
@@ -62,26 +106,55 @@ class Ready:
 
 
 def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Connection, answers: Connection,
-            graveyard: list[object]) -> bool:
+            graveyard: list[object], in_time: InTime | None = None) -> bool:
     """Stream the answers to one request until the portfolio is done or a newer request waits; True when
     a newer request ended the improvement. What a stopped search left (`graveyard`: its open list and
-    closed states) is freed once the next request has its first answer."""
+    closed states) is freed once the next request has its first answer. `in_time`: plans checked in time."""
     newer = NewerRequest(requests)
     leftovers: list[object] = []
     budget = live_budget(limits.first_seconds, limits.improve_seconds, limits.hold_seconds, stop=newer,
                          leftovers=leftovers)
     found = anytime_answers(planner, request, budget)
+    first = True
     try:
         for plan, note in found:
-            answers.send(Answer(request.generation, plan, note))
+            if in_time is None:
+                answers.send(Answer(request.generation, plan, note))
+            elif first:
+                _first_in_time(plan, note, request, limits, requests, answers, in_time)
+            elif isinstance(plan, Plan):
+                verdict = in_time.verdict(plan, request, requests, stricter=False)
+                if verdict.passed:  # a shorter plan is no gain if it needs a stricter order
+                    answers.send(Answer(request.generation, verdict.plan, note))
+            first = False
             newer.arm()
             graveyard.clear()
             if requests.poll():
                 return True
         return newer.stopped
+    except CheckStopped:
+        return True
     finally:
         found.close()
         graveyard += leftovers
+
+
+def _first_in_time(plan: Plan | NoPlan | None, note: PlannedAlone | None, request: PlanRequest, limits: Limits,
+                   requests: Connection, answers: Connection, in_time: InTime) -> None:
+    """The first answer at once, a plan to run in the strictest order; then its verdict."""
+    races = in_time.planner.timed_races
+    if isinstance(plan, NoPlan) and races:
+        # No plan wins every race learnt: the one that loses one is all there is. It runs, fails, and the
+        # livelock watch names the effect it lost (as `ControlLoop.solve` does).
+        with races.suspended_while():
+            plan, note = solve_goals(in_time.planner, request, live_budget(limits.first_seconds, 0.0, 0.0))
+    if not isinstance(plan, Plan):
+        answers.send(Answer(request.generation, plan, note))
+        return
+    answers.send(Answer(request.generation, replace(plan, execution=STRICTEST), note))
+    verdict = in_time.verdict(plan, request, requests, stricter=True)
+    answers.send(Answer(request.generation, None, verdict=verdict))
+    in_time.learn(verdict, request)
 
 
 def quiet_collector() -> None:
@@ -92,14 +165,17 @@ def quiet_collector() -> None:
     gc.set_threshold(*COLLECTOR_THRESHOLDS)
 
 
-def _serve(requests: Connection, answers: Connection, model_reference: str, limits: Limits) -> None:
+def _serve(requests: Connection, answers: Connection, model_reference: str, limits: Limits,
+           timing: Timing | None = None) -> None:
     began = time.perf_counter()
     from common.stations import load_model
 
     from .stack import build_controller_stack
 
     # The satisficing member's tables are built before the first request.
-    planner = build_controller_stack(load_model(model_reference), prepare=True).planner
+    model = load_model(model_reference)
+    planner = build_controller_stack(model, prepare=True).planner
+    in_time = None if timing is None else InTime(model, planner, timing)
     quiet_collector()
     answers.send(Ready(time.perf_counter() - began))
     served = 0
@@ -117,7 +193,7 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
             return
         preempted = False
         try:
-            preempted = _answer(planner, request, limits, requests, answers, graveyard)
+            preempted = _answer(planner, request, limits, requests, answers, graveyard, in_time)
         except Exception as exc:  # a planner bug must not stop the station: the controller reports it
             log.exception("planner failed")
             answers.send(Answer(request.generation, NoPlan(f"planner failed: {type(exc).__name__}: {exc}",
@@ -128,9 +204,11 @@ def _serve(requests: Connection, answers: Connection, model_reference: str, limi
 class PlannerProcess:
     """The controller's side: `answers(request)` yields the worker's answers to that request."""
 
-    def __init__(self, model_reference: str, limits: Limits | None = None) -> None:
+    def __init__(self, model_reference: str, limits: Limits | None = None, timing: Timing | None = None) -> None:
+        """`timing`: plans checked in time against it (None: not checked)."""
         self.model_reference = model_reference
         self.limits = limits or Limits()
+        self.timing = timing
         self._queues: dict[int, asyncio.Queue[Answer]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._process: multiprocessing.process.BaseProcess | None = None
@@ -145,7 +223,8 @@ class PlannerProcess:
         receive, worker_answers = context.Pipe(duplex=False)
         self._ready.clear()
         self._process = context.Process(target=_serve, name="planner", daemon=True,
-                                        args=(worker_requests, worker_answers, self.model_reference, self.limits))
+                                        args=(worker_requests, worker_answers, self.model_reference, self.limits,
+                                              self.timing))
         self._process.start()
         worker_requests.close()
         worker_answers.close()

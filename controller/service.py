@@ -35,6 +35,7 @@ from common.config.production import ProductionPlan
 from common.model import Kind, Model, Value
 from common.plumbing.sdnotify import Notifier
 from common.plumbing.tasks import cancel_and_wait
+from common.resources import durations_of
 from common.wire.messages import Codec
 from controller.command_hold import CommandHold
 from controller.recording.hooks import RunRecorder, StepClock, open_recording
@@ -42,11 +43,12 @@ from controller.recording.schema import RunMeta
 from controller.station_hold import StationHold
 
 from .commandpublisher import CommandPublisher
+from .cycle import effect_seconds
 from .ingest import StateIngest
 from .loop import ControlLoop
 from .loopmeter import LoopMeter
 from .planclient import PlanClient
-from .planworker import READY_WAIT_S, PlannerProcess
+from .planworker import READY_WAIT_S, PlannerProcess, Timing
 from .production.book import REQUESTED_META, OrderBook
 from .production.flow import OrderFlow
 from .production.service import OrdersService
@@ -96,18 +98,27 @@ class ControllerService:
         sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
             record, station=config.station.name, model=config.station.model, config=config.path), model)
         self.recorder = RunRecorder(self.core, self.clock, sink)
-        self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance)
+        # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
+        self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,
+                                effect_seconds(model, config.delays))
         self.meter = LoopMeter()
         self.ingest = StateIngest(self.loop, self.keys, self.codecs, self.controller_id, self.watchdog,
                                   self.command_hold, self.meter, self._forged)
         self.commands = CommandPublisher(bus, self.keys, self.commanded, self.controller_id,
                                          lambda: self.station_hold.epoch, self.watchdog)
-        # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there.
-        self.planner_process = PlannerProcess(config.station.model) if planner_process else None
+        # A search holds the GIL: it runs in a process of its own when the model can be rebuilt there. It checks
+        # its plans in time too (controller/planworker.py), against the durations the station's hubs emulate.
+        self.planner_process = PlannerProcess(config.station.model, timing=self.timing()) if planner_process else None
         self.planning = PlanClient(self.loop, self.planner_process, self._dirty.set)
         self.status_publisher = StatusPublisher(config.station.name, self.controller_id, self.core, self.watchdog,
-                                                self.hubs_of, self.meter, self.orders)
+                                                self.hubs_of, self.meter, self.orders, self.loop.cycle)
         self.notifier = Notifier()  # systemd's READY=1 and watchdog, under a unit only
+
+    def timing(self) -> Timing:
+        """The station's effect durations, from the source the emulator uses (the model's, under hubs.toml's
+        `delay`), and the engine's own order: what plans are checked in time against."""
+        table = durations_of(self.model, self.config.delays)
+        return Timing({e.resource: e.duration for e in table.entries}, self.core.engine.execution)
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:

@@ -9,11 +9,20 @@ import time
 from collections.abc import Mapping
 
 from common.bus.protocol import Bus
-from common.wire.ctl import EVENT_WINDOW, OperationInfo, ResourceHealthInfo, StateSnapshot, StatusMessage
+from common.wire.ctl import (
+    EVENT_WINDOW,
+    CycleInfo,
+    OperationInfo,
+    ResourceHealthInfo,
+    ResourceIdleInfo,
+    StateSnapshot,
+    StatusMessage,
+)
 from common.wire.keys import Keys
 from common.wire.messages import encode
 
 from .control import ControlCore
+from .cycle import CycleRecord, CycleReport
 from .engine import TickResult
 from .loopmeter import LoopMeter
 from .production.flow import OrderFlow
@@ -22,13 +31,25 @@ from .watchdog import Watchdog
 
 STATUS_PERIOD_S = 0.25
 STATE_SNAPSHOT_PERIOD_S = 1.0
+WAITS_SHOWN = 3  # of what a resource waited for, the longest ones in a status
+
+
+def cycle_info(report: CycleReport) -> CycleInfo:
+    """A cycle report on the wire."""
+    return CycleInfo(
+        cycle_s=report.cycle, predicted_s=report.predicted, bound_s=report.bound,
+        chain_s=0.0 if report.first is None else report.first.chain, busiest=report.busiest,
+        busiest_work_s=report.busiest_work,
+        idle=[ResourceIdleInfo(r.resource, r.idle, list(r.waits[:WAITS_SHOWN])) for r in report.idle])
 
 
 class StatusPublisher:
     def __init__(self, station: str, controller_id: str, core: ControlCore, watchdog: Watchdog,
-                 resources: Mapping[str, str], meter: LoopMeter, orders: OrderFlow | None = None) -> None:
+                 resources: Mapping[str, str], meter: LoopMeter, orders: OrderFlow | None = None,
+                 cycle: CycleRecord | None = None) -> None:
         """`resources`: each supervised resource's hub, in the order the status lists them; `orders`: the
-        station's orders (a station that has had one is finished when none runs or waits)."""
+        station's orders (a station that has had one is finished when none runs or waits); `cycle`: the
+        loop's plans' predictions and resources' busy spans, for the predicted finish and the bound."""
         self.station = station
         self.controller_id = controller_id
         self.core = core
@@ -36,6 +57,8 @@ class StatusPublisher:
         self.resources = resources
         self.meter = meter
         self.orders = orders
+        self.cycle = cycle
+        self.finished_at: float | None = None  # the core's clock when every operation was last seen finished
         self.started = time.monotonic()
         self.op_since: dict[str, float] = {}  # when each operation last started or finished
         self.plan_book = PlanBook(core.compiled, core)
@@ -45,6 +68,10 @@ class StatusPublisher:
         now = time.monotonic()
         for name in (*result.started, *result.finished):
             self.op_since[name] = now
+        if result.started:
+            self.finished_at = None
+        if result.finished and self.core.all_finished():
+            self.finished_at = self.core.clock()  # the cycle ends here, not when a status is next made
 
     async def run(self, bus: Bus, keys: Keys, stop: asyncio.Event) -> None:
         last_snapshot = 0.0
@@ -84,4 +111,11 @@ class StatusPublisher:
             finished=core.all_finished() if orders is None else orders.idle(),
             events=events.log.recent(EVENT_WINDOW), events_total=events.log.total,
             loop=self.meter.take(), production=None if orders is None else orders.info(),
+            cycle=self._cycle(),
         )
+
+    def _cycle(self) -> CycleInfo | None:
+        if self.cycle is None:
+            return None
+        end = self.finished_at if self.finished_at is not None else self.core.clock()
+        return cycle_info(self.cycle.report(end))

@@ -17,23 +17,33 @@ names the effect whose timing broke it, the plan step concerned, and the timing.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from common.model import Duration
+from common.model import Duration, Predicate, TransitionKind
 from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.durations import effect_owner
 from common.wire.ctl import ReplanReason
 
 from .deorder import Execution
 from .engine import Engine, PlanProgress, TickResult
-from .planner import Plan
+from .planner import Plan, Planner
 from .planner.plans import PlanStep
+from .planner.reuse import memory_key
 
 TICKS_AT_ONCE = 100  # engine ticks at one instant before the devices get their turn (as deploy/local/inprocess.py)
 MAX_EVENTS = 20_000  # instants simulated before a plan is given up as never ending
 MAX_KEPT = 200  # plans kept from a state they did not predict (`Revalidate`) in one simulation
+STOP_EVERY = 64  # instants simulated between two looks at `stop` (a newer request waiting, in the planner process)
+# A plan the engine's own order breaks at some timing runs in the first stricter order none breaks.
+STRICTER = {
+    Execution.PARTIAL_ORDER: (Execution.TRACE, Execution.SEQUENCE),
+    Execution.TRACE: (Execution.SEQUENCE,),
+    Execution.SEQUENCE: (),
+}
+STRICTEST = Execution.SEQUENCE  # what a plan runs in until its check says a looser order is safe
 
 # The rest of a plan replayed from a state it did not predict (the controller's `Planner.revalidate` for the
 # plan's goals): the plan to go on with, or None. The live controller keeps a plan so when devices change
@@ -83,6 +93,52 @@ class TimingRefusal:
         blame = f"{self.effect} came first: " if self.effect else ""
         return (f"{blame}step {self.step} {self.transition}: {self.fault.value} at {self.at:.2f} s "
                 f"with {self.timing} ({self.detail})")
+
+
+class CheckStopped(Exception):
+    """The check was asked to stop (`stop()` said so) before it had its verdict."""
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A plan checked in time: `plan` with the order it runs in (the engine's own if no timing breaks it there,
+    else the first stricter one none breaks, else the strictest), and the timings that broke it in the orders
+    tried. `passed`: some order passed; if not, the last refusal is the race the plan itself counts on."""
+
+    plan: Plan
+    refusals: tuple[TimingRefusal, ...]
+    passed: bool
+
+    @property
+    def refusal(self) -> TimingRefusal | None:
+        """The race the plan loses in every order (None: it passed in one)."""
+        return None if self.passed else self.refusals[-1]
+
+
+def revalidation(planner: Planner, operation_goals: Mapping[str, Predicate], plan: Plan,
+                 disabled: frozenset[str]) -> Revalidate | None:
+    """How the controller keeps `plan` from a state it did not predict (`Planner.revalidate` for its goals)."""
+    goals = {name: operation_goals[name] for name in plan.goals if name in operation_goals}
+    if not goals:
+        return None
+
+    def revalidate(state: State, steps: Sequence[PlanStep]) -> Plan | None:
+        return planner.revalidate(state, steps, goals, disabled)
+
+    return revalidate
+
+
+def learn_race(planner: Planner, compiled: CompiledModel, refused: TimingRefusal, goals: Mapping[str, Predicate],
+               disabled: frozenset[str]) -> bool:
+    """Forbid the race a refused plan lost for the planning to come (and forget the plan remembered for these
+    goals, the refused one); False if nothing new is learnt."""
+    victim, due = compiled.by_name.get(refused.transition), compiled.by_name.get(refused.effect)
+    if victim is None or due is None or victim.kind is TransitionKind.AUTOMATIC:
+        return False
+    if not planner.timed_races.forbid(victim, due):
+        return False
+    planner.memory.forget(memory_key(goals, disabled))
+    return True
 
 
 def corner_timings(compiled: CompiledModel, durations: Mapping[str, Duration]) -> list[Timing]:
@@ -151,21 +207,38 @@ class TimedCheck:
         self._engine = Engine(compiled, self.delays, execution)
 
     def refusal(self, plan: Plan, disabled: frozenset[str] = frozenset(), execution: Execution | None = None,
-                revalidate: Revalidate | None = None) -> TimingRefusal | None:
+                revalidate: Revalidate | None = None, stop: Callable[[], bool] | None = None
+                ) -> TimingRefusal | None:
         """Why the engine would not follow `plan` at one of the timings (None: it would at every one).
         `execution`: how its steps wait for each other (default: this check's); `revalidate`: how the
-        controller keeps a plan when the state leaves it (None: it does not)."""
+        controller keeps a plan when the state leaves it (None: it does not); `stop`: looked at as the
+        simulation goes, raises `CheckStopped` when it says so."""
         if not plan.steps:
             return None
         self._engine.execution = execution or self.execution
         for timing in self.timings:
-            refused = self._run(plan, disabled, timing, revalidate)
+            refused = self._run(plan, disabled, timing, revalidate, stop)
             if refused is not None:
                 return refused
         return None
 
+    def verdict(self, plan: Plan, disabled: frozenset[str] = frozenset(), revalidate: Revalidate | None = None,
+                stop: Callable[[], bool] | None = None, *, own: Execution | None = None,
+                stricter: bool = True) -> Verdict:
+        """`plan` in the engine's order (`own`, default: this check's) if no timing breaks it there, else
+        (`stricter`) in the first stricter order none breaks (the nutrunner started only once the operator is told
+        to tighten pipe 2), else in the strictest, refused."""
+        own = own or self.execution
+        refusals: list[TimingRefusal] = []
+        for execution in (own, *(STRICTER[own] if stricter else ())):
+            refused = self.refusal(plan, disabled, execution, revalidate, stop)
+            if refused is None:
+                return Verdict(dataclasses.replace(plan, execution=execution), tuple(refusals), passed=True)
+            refusals.append(refused)
+        return Verdict(dataclasses.replace(plan, execution=STRICTEST), tuple(refusals), passed=False)
+
     def _run(self, plan: Plan, disabled: frozenset[str], timing: Timing,
-             revalidate: Revalidate | None) -> TimingRefusal | None:
+             revalidate: Revalidate | None, stop: Callable[[], bool] | None) -> TimingRefusal | None:
         compiled = self.compiled
         engine = self._engine
         progress = PlanProgress(compiled, plan, execution=engine.execution)
@@ -180,7 +253,9 @@ class TimedCheck:
             step = next((j for j in progress.pending() if progress.transitions[j] is t), None)
             return 0 if step is None else plan.steps[step].outcome
 
-        for _ in range(MAX_EVENTS):
+        for instant in range(MAX_EVENTS):
+            if stop is not None and instant % STOP_EVERY == 0 and stop():
+                raise CheckStopped
             for _tick in range(TICKS_AT_ONCE):
                 before = state
                 result = engine.tick(state, progress=progress, disabled=disabled, now=now)

@@ -396,6 +396,29 @@ class ProductionInfo(msgspec.Struct, frozen=True):
     recent: list[OrderDone] = msgspec.field(default_factory=list)  # the newest RECENT_ORDERS, newest last
 
 
+class ResourceIdleInfo(msgspec.Struct, frozen=True):
+    """One resource's time with nothing to do, and what its commands waited for (longest first, a few)."""
+
+    resource: str
+    idle_s: float
+    waits: list[tuple[str, float]] = msgspec.field(default_factory=list)
+
+
+class CycleInfo(msgspec.Struct, frozen=True):
+    """The goal set's timing, in a status, in seconds since the controller started (controller/cycle.py):
+    the predicted finish of the plan under way, the lower bound (no schedule of the work ends sooner: the
+    busiest resource's necessary work, the first plan's longest causal chain), and each resource's idle time.
+    `cycle_s`: the time so far, or when every operation finished."""
+
+    cycle_s: float
+    predicted_s: float
+    bound_s: float
+    chain_s: float = 0.0  # the first plan's longest causal chain
+    busiest: str = ""  # the resource with the most work done
+    busiest_work_s: float = 0.0
+    idle: list[ResourceIdleInfo] = msgspec.field(default_factory=list)
+
+
 class StatusMessage(Message, kw_only=True):
     """`{station}/ctl/status`, a few times a second and on every operation change: what changed since the
     controller's previous status (`seq` counts them), and every few seconds (`full`) the whole picture,
@@ -424,6 +447,7 @@ class StatusMessage(Message, kw_only=True):
     events_total: int = 0  # events the controller logged since it started
     loop: LoopStats | None = None  # None from a controller that does not measure itself
     production: ProductionInfo | None = None  # None from a station running no orders (or an older controller)
+    cycle: CycleInfo | None = None  # None from an older controller
 
 
 class StateSnapshot(Message, kw_only=True):

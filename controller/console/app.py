@@ -186,7 +186,7 @@ class ConsoleApp(App[None]):
                     log.write(event_text(event))
             changed += self.table("operations").sync(operation_rows(status, self.info, self.clock))
             changed += self.table("plan").sync(plan_rows(status.plan, feed.plan))
-            self.table("plan").border_subtitle = plan_summary(status.plan)
+            self.table("plan").border_subtitle = plan_summary(status.plan, status.cycle)
             changed += self.table("resources").sync(resource_rows(status, self.info, feed.selftests))
         if feed.snapshot is not None:
             self.state_view.update(feed.snapshot, now)

@@ -17,6 +17,7 @@ from common.model import Kind, OperationState, ParseError, Value, parse_action
 from common.model.predicates import Ref, format_value
 from common.wire.ctl import (
     ControllerChanged,
+    CycleInfo,
     Event,
     ForbiddenStateCleared,
     OperationInfo,
@@ -138,10 +139,12 @@ def plan_rows(plan: PlanInfo | None, details: PlanDetails | None) -> dict[str, R
     return rows
 
 
-def plan_summary(plan: PlanInfo | None) -> str:
+def plan_summary(plan: PlanInfo | None, cycle: CycleInfo | None = None) -> str:
+    """The plan's progress, with its predicted finish and the goal set's lower bound when the status has them."""
+    timing = "" if cycle is None else f"; ends ~{cycle.predicted_s:.1f} s, bound {cycle.bound_s:.1f} s"
     if plan is None or not plan.id:
-        return "no plan" + (f" for {', '.join(plan.goals)}" if plan is not None and plan.goals else "")
-    return f"{plan.done_count}/{plan.steps} steps for {clip(', '.join(plan.goals), 60)}"
+        return "no plan" + (f" for {', '.join(plan.goals)}" if plan is not None and plan.goals else "") + timing
+    return f"{plan.done_count}/{plan.steps} steps for {clip(', '.join(plan.goals), 60)}{timing}"
 
 
 def production_summary(production: ProductionInfo | None) -> str:

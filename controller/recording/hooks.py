@@ -187,11 +187,14 @@ class RunRecorder:
                 detail=cause.detail, disabled=sorted(request.disabled), start=state_hash(request.start)))
 
     def plan(self, request: PlanRequest, result: Plan | NoPlan | None, *, taken: bool, improvement: bool = False,
-             note: PlannedAlone | None = None) -> None:
-        """An answer to `request`, after the core took it (`taken`) or not."""
+             note: PlannedAlone | None = None, checked: bool = False) -> None:
+        """An answer to `request`, after the core took it (`taken`) or not; `checked`: the timed check's verdict
+        on the first answer, with the order it allows (`taken`: the plan under way runs in it from now on)."""
         if self.sink is None:
             return
         record = plan_record(request, result, taken=taken, improvement=improvement)
+        if checked:
+            record.answer = PlanAnswer.CHECKED
         if note is not None:
             record.planned_alone = note.operation
         self.sink.put(self.clock(), RecordKind.PLAN, str(request.generation), record)
@@ -254,6 +257,7 @@ def plan_record(request: PlanRequest, result: Plan | NoPlan | None, *, taken: bo
         record.steps = [StepRecord(s.transition, s.outcome) for s in result.steps]
         record.ms, record.member = stats.seconds * 1000, stats.method
         record.expansions, record.minimal = stats.expanded, stats.minimal
+        record.execution = "" if result.execution is None else result.execution.value
     else:
         record.found = False
         if isinstance(result, NoPlan):

@@ -123,6 +123,7 @@ class PlanAnswer(enum.StrEnum):
 
     FIRST = "first"
     IMPROVEMENT = "improvement"
+    CHECKED = "checked"  # the live planner process's timed check of the first plan: `taken` if its order loosened
 
 
 class BudgetCounts(TypedDict, total=False):
@@ -280,6 +281,7 @@ class PlanRecord(msgspec.Struct, kw_only=True):
     expansions: int = 0
     minimal: bool = False
     planned_alone: str = ""  # the one goal planned alone when all together had no plan in the budget
+    execution: str = ""  # the order the plan runs in (an `Execution`), "" the engine's own
 
 
 class OperationRecord(msgspec.Struct, kw_only=True, rename={"before": "from", "after": "to"}):

@@ -29,9 +29,10 @@ from common.config.production import ProductionPlan
 from common.config.security import operator_identity
 from common.model import Model, OperationState
 from common.plumbing.lifecycle import free_port
-from common.wire.ctl import Event, OrderDone, OrderFinished, OrderStarted, PlanDetails, StatusMessage
+from common.wire.ctl import CycleInfo, Event, OrderDone, OrderFinished, OrderStarted, PlanDetails, StatusMessage
 from common.wire.messages import MessageError
 from controller.console.statusview import StatusFollower, fetch_plan
+from controller.cycle import Bound, CycleReport, ResourceIdle
 from controller.production.throughput import OrderThroughput, run_throughput, summary_lines
 from deploy.remote.restart_policy import UP_RESTART, RestartPolicy
 from deploy.runs.cli import timeline_after_run
@@ -218,6 +219,17 @@ class Progress:
         self.reported = set(unhealthy)
 
 
+def cycle_lines(cycle: CycleInfo | None) -> list[str]:
+    """The cycle report the in-process run prints (cycle time, bound, their ratio, each resource's idle time and
+    what it waited for), from the controller's last status ([] from a controller that does not report it)."""
+    if cycle is None:
+        return []
+    first = Bound(cycle.bound_s, cycle.chain_s, cycle.busiest, cycle.busiest_work_s)
+    idle = tuple(ResourceIdle(r.resource, r.idle_s, tuple(r.waits)) for r in cycle.idle)
+    return CycleReport(cycle.cycle_s, cycle.bound_s, cycle.predicted_s, idle, first, cycle.busiest,
+                       cycle.busiest_work_s).lines()
+
+
 def chaos_plan(options: Options, children: list[Child], model: Model) -> ChaosPlan | None:
     if options.chaos_plan is not None:
         return options.chaos_plan
@@ -335,6 +347,8 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
                 + (f", {production.current.describe()}" if production.current is not None else ""))
             for line in progress.throughput_lines():
                 say(line)
+        for line in cycle_lines(last.cycle):
+            say(line)
         if progress.last_fault is not None:
             say(f"faults seen: {progress.faults}; last: {progress.last_fault.text}")
         if result != 0:

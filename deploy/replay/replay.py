@@ -23,6 +23,7 @@ start, mirrors) and the resources held until their mirror comes (controller/comm
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from common.wire.ctl import OrderFinished
 from controller.control import ControlCore, PlanRequest
 from controller.loop import ControlLoop
 from controller.planner import Budget, NoPlan, Plan, PlanStats
+from controller.planner.plans import Execution
 from controller.planner.validate import plan_from_moves
 from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.reader import Record, Run
@@ -59,6 +61,7 @@ from controller.recording.schema import (
     station_model_hash,
 )
 from controller.stack import build_controller_stack
+from controller.timed_check import Verdict
 
 from .orders import ORDER_EVENTS, RECORDS_READ, replay_flow
 
@@ -265,7 +268,11 @@ class Replayer:
         request = self.asked.get(data.generation)
         if request is None:
             return  # not asked for in the replay: the plan requests already differ
-        if data.answer == PlanAnswer.IMPROVEMENT:
+        if data.answer == PlanAnswer.CHECKED:  # the live controller's verdict on its first plan
+            checked = recorded_answer(self.compiled, request, data)
+            assert isinstance(checked, Plan)
+            self.loop.checked(request, Verdict(checked, (), passed=True))
+        elif data.answer == PlanAnswer.IMPROVEMENT:
             answer = recorded_answer(self.compiled, request, data)
             assert isinstance(answer, Plan)
             self.loop.improve(request, answer)
@@ -280,7 +287,8 @@ def recorded_answer(compiled: CompiledModel, request: PlanRequest, data: PlanRec
     stats = PlanStats(data.member, data.ms / 1000, data.expansions, minimal=data.minimal)
     if data.found:
         moves = [(compiled.by_name[s.transition].number, s.outcome) for s in data.steps]
-        return plan_from_moves(compiled, request.start, moves, tuple(data.goals), stats)
+        plan = plan_from_moves(compiled, request.start, moves, tuple(data.goals), stats)
+        return dataclasses.replace(plan, execution=Execution(data.execution)) if data.execution else plan
     if not request.goals:
         return None
     return NoPlan(data.no_plan, tuple(data.unreachable), stats, data.proven)
