@@ -19,7 +19,7 @@ from pathlib import Path
 from controller.planner.steps import Move
 
 from .encoding import Task
-from .flat import flatten, render_flat
+from .flat import COPIES, flatten, render_flat
 from .writer import Flavour, render
 
 
@@ -116,13 +116,13 @@ def read_plan(text: str) -> tuple[str, ...]:
 
 
 def solve(task: Task, searches: tuple[Search, ...], timeout: float = 300.0,
-          flavour: Flavour = Flavour.AXIOMS) -> list[Answer]:
+          flavour: Flavour = Flavour.AXIOMS, copies: int = COPIES) -> list[Answer]:
     """Write the task (derived predicates, or the flat flavour), run Fast Downward with each search on it and
     read each plan back as (transition number, outcome) moves."""
     refused = [s for s in searches if s in FLAT_ONLY and flavour is not Flavour.FLAT]
     if refused:
         raise DownwardError(f"{refused[0].value} refuses derived predicates: run it on Flavour.FLAT")
-    flat = flatten(task) if flavour is Flavour.FLAT else None
+    flat = flatten(task, copies) if flavour is Flavour.FLAT else None
     domain_text, problem_text = render_flat(flat) if flat is not None else render(task, flavour)
     with tempfile.TemporaryDirectory(prefix="statehub-pddl-") as directory:
         workdir = Path(directory)

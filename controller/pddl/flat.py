@@ -92,9 +92,8 @@ def consistent(term: Iterable[Literal]) -> Term | None:
     items = set(term)
     for literal in items:
         atom = literal.atom
-        if literal.positive and isinstance(atom, Fact):
-            if positive.setdefault(atom.path, atom) != atom:
-                return None
+        if literal.positive and isinstance(atom, Fact) and positive.setdefault(atom.path, atom) != atom:
+            return None
     kept = []
     for literal in items:
         if Literal(literal.atom, not literal.positive) in items:
@@ -177,8 +176,9 @@ class Need:
 
 
 class Flattener:
-    def __init__(self, task: Task) -> None:
+    def __init__(self, task: Task, copies: int = COPIES) -> None:
         self.task = task
+        self.copies = copies
         self.checks: list[Check] = []
         # Keyed by identity: the actions hold these very objects, and hashing a station's formulas is slow.
         self.urgent: dict[int, Need] = {}  # allowed and each idle condition
@@ -243,7 +243,7 @@ class Flattener:
                 return []  # the action's conditions contradict each other: it never applies
             if any(consistent(t | base) == consistent(base) for t in terms):
                 continue  # implied by the rest of the precondition
-            if size * len(terms) <= COPIES:
+            if size * len(terms) <= self.copies:
                 expanded.append(terms)
                 size *= len(terms)
             else:
@@ -304,8 +304,10 @@ class Flattener:
         return FlatTask(self.task.name, self.task.facts, flags, steps, self.task.init, goal, self.task.moves)
 
 
-def flatten(task: Task) -> FlatTask:
-    return Flattener(task).flatten()
+def flatten(task: Task, copies: int = COPIES) -> FlatTask:
+    """The flat task; `copies` bounds the copies of one action for its disjunctive conditions (1: every
+    disjunctive condition is checked in the action's chain)."""
+    return Flattener(task, copies).flatten()
 
 
 def render_flat(task: FlatTask) -> tuple[str, str]:
