@@ -9,8 +9,9 @@ it (a check per disjunct of the condition's disjunctive normal form), and every 
 variable the condition reads makes it false again, so `ok-c` holds only while `c` does. The checks of
 these urgent conditions go in model order (a check needs the earlier ones done), so after a step the
 search meets one order of checks, not every interleaving. Other disjunctive conditions (a race check, a
-disjunctive guard) become copies of the step, one per disjunct, while their product stays small, else
-checks of their own. A copy `x := y` is one copy of the step per value of `y`.
+disjunctive guard, the clauses of a synthesized guard) become copies of the step, one per disjunct, while
+their product stays small; the rest are checked in a chain of the action's own (`intend-T`, a check per
+clause, T), with nothing else allowed in between. A copy `x := y` is one copy of the step per value of `y`.
 
 Steps cost 1 and checks 0, so the optimal cost is the length statehub counts; a plan read back drops the
 checks and names each copy by the action it copies.
@@ -75,7 +76,7 @@ class FlatTask:
         result = []
         for name in plan:
             if name not in by_name:
-                raise Unexpressible(f"the plan names step {name!r}, not a step of the flat task")
+                raise ValueError(f"the plan names step {name!r}, not a step of the flat task")
             origin = by_name[name]
             if origin is not None:
                 result.append(origin)
