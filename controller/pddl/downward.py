@@ -19,18 +19,35 @@ from pathlib import Path
 from controller.planner.steps import Move
 
 from .encoding import Task
+from .flat import COPIES, flatten, render_flat
 from .writer import Flavour, render
 
 
 class Search(Enum):
-    """Search configurations that accept derived predicates (lm-cut and most others refuse them).
+    """Fast Downward's search configurations used here.
 
-    hmax is admissible here: the encoding's derived predicates occur only positively, so the delete
-    relaxation with axioms is a relaxation; A* with it finds shortest plans."""
+    OPTIMAL, BLIND and SATISFICING accept derived predicates; hmax is admissible on the axioms flavour
+    because its derived predicates occur only positively (the delete relaxation with axioms is a
+    relaxation). LMCUT, MERGE_AND_SHRINK and IPDB refuse axioms and conditional effects: they run on the
+    flat flavour (`flat.py`), where every search is optimal in cost = statehub's length."""
 
     OPTIMAL = "astar(hmax())"
     BLIND = "astar(blind())"  # optimal too, no heuristic: the cross-check of OPTIMAL on small tasks
     SATISFICING = "lazy_greedy([ff()], preferred=[ff()])"
+    LMCUT = "astar(lmcut())"
+    MERGE_AND_SHRINK = ("astar(merge_and_shrink(shrink_strategy=shrink_bisimulation(greedy=false),"
+                        "merge_strategy=merge_sccs(order_of_sccs=topological,merge_selector=score_based_filtering("
+                        "scoring_functions=[goal_relevance(),dfp(),total_order()])),"
+                        "label_reduction=exact(before_shrinking=true,before_merging=false),max_states=50000,"
+                        "threshold_before_merge=1))")
+    IPDB = "astar(ipdb())"
+
+    @property
+    def optimal(self) -> bool:
+        return self is not Search.SATISFICING
+
+
+FLAT_ONLY = frozenset({Search.LMCUT, Search.MERGE_AND_SHRINK, Search.IPDB})
 
 
 class DownwardError(RuntimeError):
@@ -98,15 +115,22 @@ def read_plan(text: str) -> tuple[str, ...]:
     return tuple(names)
 
 
-def solve(task: Task, searches: tuple[Search, ...], timeout: float = 300.0) -> list[Answer]:
-    """Write the task (derived predicates), run Fast Downward with each search on it and read each plan back as
-    (transition number, outcome) moves."""
-    domain_text, problem_text = render(task, Flavour.AXIOMS)
+def solve(task: Task, searches: tuple[Search, ...], timeout: float = 300.0,
+          flavour: Flavour = Flavour.AXIOMS, copies: int = COPIES) -> list[Answer]:
+    """Write the task (derived predicates, or the flat flavour), run Fast Downward with each search on it and
+    read each plan back as (transition number, outcome) moves."""
+    refused = [s for s in searches if s in FLAT_ONLY and flavour is not Flavour.FLAT]
+    if refused:
+        raise DownwardError(f"{refused[0].value} refuses derived predicates: run it on Flavour.FLAT")
+    flat = flatten(task, copies) if flavour is Flavour.FLAT else None
+    domain_text, problem_text = render_flat(flat) if flat is not None else render(task, flavour)
     with tempfile.TemporaryDirectory(prefix="statehub-pddl-") as directory:
         workdir = Path(directory)
         (workdir / "domain.pddl").write_text(domain_text)
         (workdir / "problem.pddl").write_text(problem_text)
         plans = run_files(workdir / "domain.pddl", workdir / "problem.pddl", searches, workdir, timeout)
+    if flat is not None:
+        plans = [None if plan is None else flat.origins(plan) for plan in plans]
     moves = task.moves
     answers = []
     for plan in plans:

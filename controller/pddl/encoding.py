@@ -82,6 +82,12 @@ class Task:
     init: tuple[Fact, ...]
     goal: tuple[Condition, ...]  # a conjunction
     names: Names = field(default_factory=Names)
+    # The conditions every step needs, as named in the actions: not forbidden, and per automatic transition (in
+    # model order) its guard false; `stable` is the conjunction of `idle`. A flavour without derived predicates
+    # checks them with steps of its own (`flat.py`).
+    allowed: Condition = ALWAYS
+    idle: tuple[Named, ...] = ()
+    stable: Condition = ALWAYS
 
     @property
     def moves(self) -> dict[str, Move]:
@@ -185,7 +191,8 @@ def encode(compiled: CompiledModel, start: State, goal: Predicate, forbidden: Pr
             actions.append(Action(names.make(label), (t.number, o), tuple(checks), _effects(facts, outcome, where)))
     init = tuple(Fact(path, value) for path, value in zip(compiled.paths, start, strict=True))
     task_goal = (allowed, stable, facts.formula(goal, "the goal"))
-    return Task(names.make(name or compiled.model.name), fact_names, tuple(actions), init, task_goal, names)
+    return Task(names.make(name or compiled.model.name), fact_names, tuple(actions), init, task_goal, names,
+                allowed, tuple(idle), stable)
 
 
 def goal_of(goals: Mapping[str, Predicate]) -> Predicate:

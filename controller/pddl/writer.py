@@ -26,6 +26,7 @@ NEVER_FACT = "never"  # a fact no state has: what an empty disjunction is
 class Flavour(Enum):
     AXIOMS = "axioms"
     INLINE = "inline"
+    FLAT = "flat"  # no derived predicates, disjunctions or conditional effects: `flat.py` writes it
 
 
 class Writer:
@@ -121,6 +122,10 @@ def effect_text(task: Task, effect: Effect) -> str:
 
 def render(task: Task, flavour: Flavour = Flavour.AXIOMS) -> tuple[str, str]:
     """(domain.pddl text, problem.pddl text)."""
+    if flavour is Flavour.FLAT:
+        from .flat import flatten, render_flat  # flat.py builds on the encoding, as this module does
+
+        return render_flat(flatten(task))
     writer = Writer(task, flavour)
     domain, goal = writer.domain()
     return domain, writer.problem(goal)

@@ -6,7 +6,8 @@ Prints, side by side in one run:
    what the controller gets first) and its final plan (after A* tried to improve it,
    marked minimal when shown), A* alone, the symbolic member alone, and breadth-first
    (given up at a state limit), and Fast Downward on the task exported to PDDL (docs/pddl.md), its
-   satisficing search (greedy, FF) and its optimal one (A* with h^max; its CPU time and that of its
+   satisficing search (greedy, FF), its optimal one (A* with h^max) and its optimal ones on the flat
+   flavour without derived predicates (A* with lm-cut, with merge-and-shrink; CPU time with that of its
    processes, the encoding and the translation included). Cases: the reference station (`engine_assembly`, with
    its synthesized supervisor) — `TightenBolt7` with the filter tool at home, 24 bolts
    from the frame placed, the `ParkNutrunner + AttachFilterTool + 3 filters + 2 pipes`
@@ -43,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from common.model import Model, OperationState, Predicate, all_of, parse_predicate
 from common.model.compiled import CompiledModel, State
 from common.stations import engine_assembly, load_model
-from controller.pddl import encode
+from controller.pddl import Flavour, encode
 from controller.pddl.downward import Search, solve
 from controller.planner import Budget, NoPlan, Plan, Planner, breadth_first
 from controller.planner.policy import VIRTUAL_BUDGET
@@ -159,20 +160,20 @@ def cpu_with_children() -> float:
     return time.process_time() + children.ru_utime + children.ru_stime
 
 
-def fast_downward(search: Search) -> Callable[[Planner, Case, float], Outcome]:
+def fast_downward(search: Search, flavour: Flavour = Flavour.AXIOMS) -> Callable[[Planner, Case, float], Outcome]:
     """Fast Downward on the exported task (docs/pddl.md): encoding, writing, translating and searching."""
 
     def run(planner: Planner, case: Case, limit: float) -> Outcome:
         began = cpu_with_children()
         task = encode(case.compiled, case.start, all_of(*case.goals.values()), case.forbidden)
         try:
-            [answer] = solve(task, (search,), timeout=limit)
+            [answer] = solve(task, (search,), timeout=limit, flavour=flavour)
         except subprocess.TimeoutExpired:
             return Outcome(cpu_with_children() - began, f">{limit:.0f} s", "-", "-")
         seconds = cpu_with_children() - began
         if answer.plan is None:
             return Outcome(seconds, "none", "-", "-")
-        return Outcome(seconds, str(len(answer.plan)), "yes" if search is Search.OPTIMAL else "-", "-")
+        return Outcome(seconds, str(len(answer.plan)), "yes" if search.optimal else "-", "-")
 
     return run
 
@@ -184,6 +185,8 @@ MEMBERS: list[tuple[str, Callable[[Planner, Case, float], Outcome]]] = [
     ("symbolic alone", symbolic_alone),
     ("Fast Downward: satisficing", fast_downward(Search.SATISFICING)),
     ("Fast Downward: optimal", fast_downward(Search.OPTIMAL)),
+    ("Fast Downward: optimal, flat, lm-cut", fast_downward(Search.LMCUT, Flavour.FLAT)),
+    ("Fast Downward: optimal, flat, merge-and-shrink", fast_downward(Search.MERGE_AND_SHRINK, Flavour.FLAT)),
 ]
 
 
