@@ -228,8 +228,10 @@ def test_no_step_comes_between_an_actions_chain_of_checks_and_the_action() -> No
 # 2,600 and 21,700 operators in each); merge-and-shrink, iPDB and blind search time out too; the reference
 # station's longer sets need more layers still.
 OPTIMAL_STATION_CASES = ("machine_tending: 1 goals at start",)
-STATION_CASES = ("shared_workspace: 9 goals at start", "TightenBolt7 (filter tool at home)",
-                 "24 bolts (frame placed)", "Park+AttachFilterTool+3 filters+2 pipes", "RobotHome (where it stalled)")
+# shared_workspace's 9 goals are not among them: Fast Downward's satisficing search took 11 minutes there and
+# `Planner.plan` answers its greedy plan (88 steps) without showing it shortest, so "no shorter" says nothing.
+STATION_CASES = ("TightenBolt7 (filter tool at home)", "24 bolts (frame placed)",
+                 "Park+AttachFilterTool+3 filters+2 pipes", "RobotHome (where it stalled)")
 
 
 @functools.cache
