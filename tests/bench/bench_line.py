@@ -44,6 +44,7 @@ from common.wire.holder_token import declare_holder  # noqa: E402
 from common.wire.messages import Codec  # noqa: E402
 from deploy.line.store import VisitState  # noqa: E402
 from deploy.line.up import LineOptions, run_line  # noqa: E402
+from tests.bench.bench_station import mirrored_at  # noqa: E402
 from tests.line_station.site import write_line  # noqa: E402
 
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
@@ -122,12 +123,7 @@ async def round_trips(directory: Path, how: str, count: int) -> list[float]:
             seq = 0
 
             async def mirrored(wanted: int, timeout: float = 2.0) -> float:
-                deadline = time.monotonic() + timeout
-                while True:
-                    sample = await asyncio.wait_for(states.get(), max(0.001, deadline - time.monotonic()))
-                    state = codec.decode_state(sample.payload)
-                    if state.mirror is not None and state.mirror.seq == wanted:
-                        return time.perf_counter()
+                return await mirrored_at(states, codec, wanted, timeout)
 
             seq = 1
             first = codec.encode_command(codec.command({"run_c": False}, seq=seq, controller="bench"))

@@ -50,11 +50,14 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.bus.inbox import Subscription  # noqa: E402
+from common.bus.protocol import Sample  # noqa: E402
 from common.bus.zenoh_bus import ZenohBus  # noqa: E402
 from common.bus.zenoh_config import zenoh_config  # noqa: E402
 from common.plumbing.lifecycle import free_port  # noqa: E402
 from common.wire.holder_token import declare_holder  # noqa: E402
 from common.wire.keys import station_keys  # noqa: E402
+from common.wire.messages import Codec  # noqa: E402
 from controller.recording.writer import RECORDING_DIR_ENV  # noqa: E402
 from tests.bench.bench_station_load import HUB_RATE_HZ, RESOURCES_ENV, generator_slices, write_station  # noqa: E402
 
@@ -82,6 +85,16 @@ def stop(process: subprocess.Popen[bytes] | None) -> None:
 
 
 # --- (b) one step: a controller and load generators with N resources ---------------------------------
+
+
+async def mirrored_at(states: Subscription[Sample], codec: Codec, wanted: int, timeout: float = 2.0) -> float:
+    """When (perf_counter) the hub's state first mirrors command `wanted`; TimeoutError after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        sample = await asyncio.wait_for(states.get(), max(0.001, deadline - time.monotonic()))
+        state = codec.decode_state(sample.payload)
+        if state.mirror is not None and state.mirror.seq == wanted:
+            return time.perf_counter()
 
 @dataclass
 class Step:
@@ -266,7 +279,6 @@ class HubFigures:
 
 async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> HubFigures:
     from common.config.hubs_toml import load_station
-    from common.wire.messages import Codec
 
     text = FAULT_STATION.read_text().replace('name = "fault_station"', f'name = "bench_hub_{os.getpid()}"', 1)
     config_path = directory / "hub.toml"
@@ -290,12 +302,7 @@ async def hub_figures(directory: Path, round_trips: int, footprint_s: float) -> 
                 return codec.encode_command(codec.command({"run_c": run_c}, seq=seq, controller="bench"))
 
             async def mirrored(wanted: int, timeout: float = 2.0) -> float:
-                deadline = time.monotonic() + timeout
-                while True:
-                    sample = await asyncio.wait_for(states.get(), max(0.001, deadline - time.monotonic()))
-                    state = codec.decode_state(sample.payload)
-                    if state.mirror is not None and state.mirror.seq == wanted:
-                        return time.perf_counter()
+                return await mirrored_at(states, codec, wanted, timeout)
 
             # (c) the footprint, commanded as a controller does at rest: the same command re-sent at 10 Hz.
             seq = 1
