@@ -31,8 +31,8 @@ from common.wire.ctl import (
 
 from .engine import Engine, LostEffect, PlanProgress, TickResult
 from .events import EventLog
+from .livelock import PLAN_FAILED, LivelockWatch, Repeat
 from .livelock import RETRIES as LIVELOCK_RETRIES
-from .livelock import LivelockWatch, Repeat
 from .planner import Budget, NoPlan, Plan, Planner
 from .planner.policy import RETRY_FIRST_S, RETRY_MAX_S, live_budget, solve_goals
 from .safety import SafetyMonitor
@@ -269,7 +269,7 @@ class ControlCore:
         if self.planning or self.need_plan_reason is None or self.safety.stopped:
             return None  # a plan from a forbidden state waits until it clears
         goals = self.goals()
-        repeat = self._repeat(goals)
+        repeat = self._repeat(goals, self.need_plan_reason)
         if repeat is not Repeat.FIRST and repeat is not Repeat.AGAIN:
             goals = self.goals()  # the livelocked goals are in error now
         self.generation += 1
@@ -282,12 +282,13 @@ class ControlCore:
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason,
                            reuse=repeat is Repeat.FIRST)
 
-    def _repeat(self, goals: Mapping[str, Predicate]) -> Repeat:
-        """Count this request; asked again in a loop that loses an effect, or too often, the goals go to error."""
+    def _repeat(self, goals: Mapping[str, Predicate], cause: ReplanCause) -> Repeat:
+        """Count this request; asked again in a loop that loses an effect, or too often, the goals go to error.
+        Only a request because a plan failed counts (controller/livelock.py)."""
         lost, self._lost = self._lost, None
         if not goals:
             return Repeat.FIRST
-        repeat, count = self.livelock.asked(frozenset(goals), self.state)
+        repeat, count = self.livelock.asked(frozenset(goals), self.state, plan_failed=cause.reason in PLAN_FAILED)
         if repeat is Repeat.GIVE_UP or (repeat is Repeat.LOOP and lost is not None):
             self._livelocked(sorted(goals), lost, count, retry=repeat is Repeat.LOOP)
         elif repeat is Repeat.LOOP:

@@ -3,9 +3,10 @@ from a state already seen since the last progress are planned afresh, then put i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
-from common.model import OperationState
+from common.model import OperationState, Resource, measured
 from common.model.compiled import CompiledModel
 from common.wire.ctl import Livelock, ReplanCause, ReplanReason
 from controller.control import ControlCore
@@ -72,3 +73,33 @@ def test_the_same_goals_asked_twenty_times_from_one_state_go_to_error_and_wait_f
     core.tick()
     request = core.plan_request()  # counted afresh
     assert request is not None and set(request.goals) == {"LampOn"} and request.reuse
+
+
+def test_replans_because_health_changes_are_no_circle_however_many_from_one_state() -> None:
+    # A hub's link that flaps while the operator works on one task: the station asks again from one state
+    # at each change, and does nothing wrong. (Before: 20 such requests put the operations in error.)
+    lamp = lamp_beside_a_gauge()
+    fan = Resource("f", (measured("f.spin_m"),), ())  # a device no plan needs, whose hub flaps
+    compiled = CompiledModel(dataclasses.replace(lamp, resources=(*lamp.resources, fan)))
+    core = ControlCore(compiled, Planner(compiled), clock=lambda: 0.0)
+    core.request("LampOn")
+    core.tick()
+    for flap in range(2 * GIVE_UP_AFTER):
+        request = core.plan_request()
+        assert request is not None and set(request.goals) == {"LampOn"}, flap
+        core.adopt(request, core.solve(request))
+        core.set_disabled(frozenset({"f"}) if flap % 2 == 0 else frozenset())
+    assert core.op_state("LampOn") is not OperationState.ERROR
+    assert not [event for event in core.events.log if isinstance(event, Livelock)]
+    request = core.plan_request()
+    assert request is not None
+    core.adopt(request, core.solve(request))
+    core.load({})  # rounds that count still do: the 20th from this state (the first request was one) gives up
+    for _ in range(GIVE_UP_AFTER - 2):
+        request = core.plan_request()
+        assert request is not None and set(request.goals) == {"LampOn"}
+        core.adopt(request, core.solve(request))
+        core.load({})
+    request = core.plan_request()
+    assert request is not None and not request.goals
+    assert core.op_state("LampOn") is OperationState.ERROR

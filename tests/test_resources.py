@@ -378,8 +378,31 @@ def test_operator_confirms_only_when_possible_and_records_it() -> None:
     assert state["engine.frame_e"] == "seated" and state["human.instr_c"] == "none"
 
 
+def test_the_operator_is_never_asked_to_redo_what_is_done() -> None:
+    # Without it the planner asked the operator to tighten pipe 1 once more, as a detour that fetched the
+    # nutrunner for pipe 2 (the console's reference run then waited for a second confirmation for ever).
+    part = estimated("engine.part_e", Domain.enum("absent", "mounted", "tightened"), "absent")
+    plate = estimated("engine.plate_e", Domain.enum("loose", "tight"), "loose")
+    human = operator(tasks=("mount", "tighten", "wave"), confirm_when={"tighten": "engine.plate_e == tight"},
+                     on_confirm={"mount": ["engine.part_e := mounted"]})
+    model = Model("op", (human,), estimated=(part, plate))
+    initial = model.initial_state()
+    assert enabled(model, initial, TransitionKind.DELIBERATE) == {"human.mount.enabled", "human.tighten.enabled",
+                                                                 "human.wave.enabled"}
+    done = initial | {"engine.part_e": "mounted", "engine.plate_e": "tight"}
+    assert enabled(model, done, TransitionKind.DELIBERATE) == {"human.wave.enabled"}  # a task for nothing: always
+    # What it records may move on (mounted, then tightened): `instruct_when` says where the task starts from.
+    human = operator(tasks=("mount",), on_confirm={"mount": ["engine.part_e := mounted"]},
+                     instruct_when={"mount": "engine.part_e == absent"})
+    model = Model("op", (human,), estimated=(part,))
+    moved_on = model.initial_state() | {"engine.part_e": "tightened"}
+    assert enabled(model, model.initial_state(), TransitionKind.DELIBERATE) == {"human.mount.enabled"}
+    assert enabled(model, moved_on, TransitionKind.DELIBERATE) == set()
+
+
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"tasks": ("none",)}, "no instruction"),
+    ({"tasks": ("a",), "instruct_when": {"b": True}}, "instruct_when"),
     ({"tasks": ("a",), "confirm_when": {"b": True}}, "confirm_when"),
     ({"tasks": ("a",), "on_confirm": {"b": []}}, "on_confirm"),
 ])

@@ -12,6 +12,14 @@ One ability per task T (a template instantiated in a loop):
 The button release is one effect shared by all tasks (`human.release_button`): one per
 task would be the same transition many times over and only widen the planner's search.
 
+An operator is never asked to do what is already done: the instruction of T is given only while
+`instruct_when[T]` holds (the filter still absent), by default while what T is for does not hold yet:
+what its confirmation records (`on_confirm[T]`), or, for a task that records nothing, its
+`confirm_when[T]` (the pipe plate tightened). Without it a planner may ask for a task again as a
+detour (tighten pipe 1 once more, because that makes the operator fetch the nutrunner), and a
+person would be told to redo finished work. The default cannot know that a recorded value may move
+on (a filter mounted, then tightened): a station whose product states do says `instruct_when`.
+
 `confirm_when[T]` is what must physically hold before the operator can finish T (the
 operator confirms the ladder frame only once it sits on the engine): a guard on the
 confirmation effect. `on_confirm[T]` is what the controller records when T is
@@ -25,6 +33,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from common.model import Ability, Assign, Domain, Duration, Phase, Resource, ability, command, measured
+from common.model.actions import as_action
+from common.model.predicates import Const, Not, Predicate, all_of, as_predicate, eq
 from common.model.transitions import ActionsLike
 
 # How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
@@ -35,13 +45,15 @@ NO_TASK = "none"
 
 
 def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mapping[str, object] | None = None,
-             on_confirm: Mapping[str, ActionsLike] | None = None) -> Resource:
+             on_confirm: Mapping[str, ActionsLike] | None = None,
+             instruct_when: Mapping[str, object] | None = None) -> Resource:
     tasks = tuple(tasks)
     conditions = dict(confirm_when or {})
     records = dict(on_confirm or {})
+    instructable = dict(instruct_when or {})
     if NO_TASK in tasks:
         raise ValueError(f"{NO_TASK!r} means no instruction and cannot be a task")
-    for parameter, keys in (("confirm_when", conditions), ("on_confirm", records)):
+    for parameter, keys in (("confirm_when", conditions), ("on_confirm", records), ("instruct_when", instructable)):
         unknown = set(keys) - set(tasks)
         if unknown:
             raise ValueError(f"{parameter} names tasks {sorted(unknown)} that are not among {tasks}")
@@ -54,7 +66,9 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
         given = instr_c == task
         abilities.append(ability(
             f"{name}.{task}",
-            enabled=Phase(idle, deliberate=f"{instr_c.path} := {task}"),
+            enabled=Phase(idle, deliberate=f"{instr_c.path} := {task}",
+                          guard=instructable[task] if task in instructable
+                          else _not_done_yet(records.get(task, ()), conditions.get(task))),
             executing=Phase(given & ~done_m, effects=[f"{done_m.path} := true"], guard=conditions.get(task, True)),
             finished=Phase(given & done_m,
                            automatic=[f"{instr_c.path} := {NO_TASK}", *_as_list(records.get(task, ()))]),
@@ -68,3 +82,14 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
 
 def _as_list(actions: ActionsLike) -> list[Assign | str]:
     return [actions] if isinstance(actions, str | Assign) else list(actions)
+
+
+def _not_done_yet(records: ActionsLike, condition: object) -> Predicate:
+    """The task's purpose does not hold yet: not every value its confirmation records is there, or, when it
+    records nothing, its confirm condition does not hold (no condition: always instructable)."""
+    recorded = [eq(action.path, action.value) for action in map(as_action, _as_list(records))]
+    if recorded:
+        return Not(all_of(*recorded))
+    if condition is None:
+        return Const(True)
+    return Not(as_predicate(condition))
