@@ -31,9 +31,10 @@ from common.bus.zenoh_config import ZenohConfig, zenoh_config
 from common.config.modes import NetworkMode
 from common.wire.ctl import ConsoleReply, ConsoleRequest, PlanDetails, StateSnapshot, StatusMessage
 from common.wire.keys import station_keys
-from common.wire.messages import Message, MessageError, decode, encode
+from common.wire.messages import Message, MessageError, decode
 from common.wire.selftest_report import SelftestMessage
 from controller.console.statusview import StatusFollower, fetch_plan
+from controller.ctl_query import ask_controller
 
 log = logging.getLogger("statehub.console")
 
@@ -58,6 +59,10 @@ class Feed(Protocol):
     async def run(self) -> None: ...
 
     async def request(self, request: ConsoleRequest) -> ConsoleReply: ...
+
+
+def refused(reason: str) -> ConsoleReply:
+    return ConsoleReply(accepted=False, reason=reason)
 
 
 def origin() -> str:
@@ -114,23 +119,16 @@ class ConsoleLink:
                 await self._opened.wait()
         bus = self._bus
         if bus is None:
-            return ConsoleReply(accepted=False, reason="not connected to the station's bus")
+            return refused("not connected to the station's bus")
         if not request.origin:
             request = msgspec.structs.replace(request, origin=self.origin)
         try:
-            replies = await bus.get(self.keys.ctl("request"), payload=encode(request), timeout=REQUEST_TIMEOUT_S)
+            return await ask_controller(
+                bus, self.keys.ctl("request"), request, ConsoleReply, timeout=REQUEST_TIMEOUT_S, refuse=refused,
+                unanswered=f"no controller answered within {REQUEST_TIMEOUT_S:.0f} s "
+                           f"(connecting to {', '.join(self.connect) or 'nobody'})")
         except BusError as exc:  # the session closing under us: an answer, not a crash
-            return ConsoleReply(accepted=False, reason=f"the request could not be sent: {exc}")
-        for reply in replies:
-            if not reply.ok:
-                failure = reply.payload.decode(errors="replace")
-                return ConsoleReply(accepted=False, reason=f"the controller failed: {failure}")
-            try:
-                return decode(reply.payload, ConsoleReply)
-            except MessageError as exc:
-                return ConsoleReply(accepted=False, reason=f"unreadable reply from the controller: {exc}")
-        return ConsoleReply(accepted=False, reason=f"no controller answered within {REQUEST_TIMEOUT_S:.0f} s "
-                                                   f"(connecting to {', '.join(self.connect) or 'nobody'})")
+            return refused(f"the request could not be sent: {exc}")
 
     # --- what arrives ------------------------------------------------------------------------
     @staticmethod

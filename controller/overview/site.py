@@ -13,7 +13,6 @@ deploy/line/overview.py) and handed to a `SiteFeed`.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import enum
 
 import msgspec
@@ -22,7 +21,7 @@ from aiohttp import web
 from common.wire.orders import ParameterValue
 
 from .picture import Severity
-from .web import KEEPALIVE_S, REFRESH_S, STATIC, _event, _headers
+from .web import STATIC, _event, read_only_app, stream_events
 
 
 class StationState(enum.StrEnum):
@@ -91,25 +90,11 @@ async def _site(request: web.Request) -> web.Response:
 
 async def _events(request: web.Request) -> web.StreamResponse:
     feed = request.app[SITE_FEED]
-    response = web.StreamResponse(headers={"Content-Type": "text/event-stream"})
-    await response.prepare(request)
-    seen = -1
-    with contextlib.suppress(ConnectionResetError, asyncio.CancelledError):
-        while True:
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(KEEPALIVE_S):
-                    seen = await feed.changed(seen)
-            await response.write(_event("site", msgspec.json.encode(feed.picture)))
-            await asyncio.sleep(REFRESH_S)
-    return response
+    return await stream_events(request, feed.changed, lambda: [_event("site", msgspec.json.encode(feed.picture))])
 
 
 def make_site_app(feed: SiteFeed) -> web.Application:
     """Every route a GET, as the station overview's: nothing here can act on the line."""
-    app = web.Application(middlewares=[_headers])
+    app = read_only_app({"/": _index, "/events": _events, "/site.json": _site})
     app[SITE_FEED] = feed
-    app.router.add_get("/", _index)
-    app.router.add_get("/events", _events)
-    app.router.add_get("/site.json", _site)
-    app.router.add_static("/static/", STATIC, follow_symlinks=False)
     return app

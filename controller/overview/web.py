@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 
 import msgspec
@@ -30,9 +30,11 @@ POLICY = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'sel
           "form-action 'none'; frame-ancestors 'none'; base-uri 'none'")
 
 
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
 @web.middleware
-async def _headers(request: web.Request,
-                   handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> web.StreamResponse:
+async def _headers(request: web.Request, handler: Handler) -> web.StreamResponse:
     response = await handler(request)
     response.headers["Content-Security-Policy"] = POLICY
     response.headers["Cache-Control"] = "no-store"
@@ -56,31 +58,48 @@ def _event(name: str, data: bytes) -> bytes:
     return b"event: " + name.encode() + b"\ndata: " + data + b"\n\n"
 
 
-async def _events(request: web.Request) -> web.StreamResponse:
-    feed = request.app[FEED]
+async def stream_events(request: web.Request, changed: Callable[[int], Awaitable[int]],
+                        due: Callable[[], Iterable[bytes]]) -> web.StreamResponse:
+    """Server-sent events until the page goes away: `due()` (events made with `_event`) whenever `changed(seen)`
+    says a version other than the one seen came, at most every REFRESH_S, and at least every KEEPALIVE_S."""
     response = web.StreamResponse(headers={"Content-Type": "text/event-stream"})
     await response.prepare(request)
-    sent_gantt: object = None
     seen = -1
     with contextlib.suppress(ConnectionResetError, asyncio.CancelledError):
         while True:
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(KEEPALIVE_S):
-                    seen = await feed.changed(seen)
-            await response.write(_event("picture", msgspec.json.encode(feed.picture())))
-            if feed.gantt is not sent_gantt:
-                sent_gantt = feed.gantt
-                await response.write(_event("gantt", msgspec.json.encode(feed.gantt)))
+                    seen = await changed(seen)
+            for event in due():
+                await response.write(event)
             await asyncio.sleep(REFRESH_S)
     return response
 
 
-def make_app(feed: OverviewFeed) -> web.Application:
+async def _events(request: web.Request) -> web.StreamResponse:
+    feed = request.app[FEED]
+    sent_gantt: object = None  # the Gantt data this stream sent last: it is sent again only when it changed
+
+    def due() -> Iterator[bytes]:
+        nonlocal sent_gantt
+        yield _event("picture", msgspec.json.encode(feed.picture()))
+        if feed.gantt is not sent_gantt:
+            sent_gantt = feed.gantt
+            yield _event("gantt", msgspec.json.encode(feed.gantt))
+
+    return await stream_events(request, feed.changed, due)
+
+
+def read_only_app(gets: Mapping[str, Handler]) -> web.Application:
+    """An app answering only GETs: `gets` (path -> handler) and the static files, with this module's headers."""
     app = web.Application(middlewares=[_headers])
-    app[FEED] = feed
-    app.router.add_get("/", _index)
-    app.router.add_get("/events", _events)
-    app.router.add_get("/picture.json", _picture)
-    app.router.add_get("/gantt.json", _gantt)
+    for path, handler in gets.items():
+        app.router.add_get(path, handler)
     app.router.add_static("/static/", STATIC, follow_symlinks=False)
+    return app
+
+
+def make_app(feed: OverviewFeed) -> web.Application:
+    app = read_only_app({"/": _index, "/events": _events, "/picture.json": _picture, "/gantt.json": _gantt})
+    app[FEED] = feed
     return app
