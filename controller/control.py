@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from common.config.modes import DEFAULT_EXECUTION, Execution
 from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.wire.ctl import (
@@ -94,12 +95,14 @@ class ControlEvents:
 
 class ControlCore:
     def __init__(self, compiled: CompiledModel, planner: Planner, clock: Callable[[], float] = time.monotonic,
-                 *, budget: Budget | None = None) -> None:
+                 *, budget: Budget | None = None, execution: Execution = DEFAULT_EXECUTION) -> None:
+        """`execution`: the order the engine runs plans in (`[controller] execution`), unless the timed check
+        chose a stricter one for a plan."""
         self.compiled = compiled
         self.model = compiled.model
         self.planner = planner
         self.budget = budget or live_budget()
-        self.engine = Engine(compiled)
+        self.engine = Engine(compiled, execution=execution)
         self.clock = clock
         self.state: State = compiled.initial()
         self.requested: list[str] = []  # operations to start when their precondition holds

@@ -47,6 +47,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 
+from common.config.modes import DEFAULT_EXECUTION
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.durations import effect_delays
@@ -75,9 +76,9 @@ class PlanProgress:
     """Which steps of an adopted plan have been fired or observed, and what state the plan predicts."""
 
     def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None,
-                 execution: Execution = Execution.TRACE) -> None:
+                 execution: Execution = DEFAULT_EXECUTION) -> None:
         """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
-        `execution`: how steps wait for each other (the trace by default; controller/deorder.py says why)."""
+        `execution`: how steps wait for each other (hubs.toml's default, the partial order; controller/deorder.py)."""
         self.plan = plan
         self.execution = plan.execution or execution  # a plan the timed check ran in a stricter order keeps it
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]
@@ -274,7 +275,7 @@ class TickResult:
 
 class Engine:
     def __init__(self, compiled: CompiledModel, delays: Mapping[str, float] | None = None,
-                 execution: Execution = Execution.TRACE) -> None:
+                 execution: Execution = DEFAULT_EXECUTION) -> None:
         """`delays`: seconds each effect takes, by effect transition name (default: the model's,
         common/model/durations.py); they bound how long a step is held for a due effect. `execution`:
         how the plans this engine follows are ordered (`PlanProgress`)."""

@@ -88,7 +88,7 @@ class ControlLoop:
         runs in the caller's thread, seconds for a plan of hundreds of steps: in process and in replay, not yet
         in the live controller's event loop)."""
         self.core = core
-        self.timed = None if durations is None else TimedCheck(core.compiled, durations)
+        self.timed = None if durations is None else TimedCheck(core.compiled, durations, core.engine.execution)
         self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self._goals = {name: op.goal for name, op in core.model.operation_by_name.items()}
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from common.config.hubs_toml import load_station
-from common.config.modes import argument
+from common.config.modes import Execution, argument
 from common.config.production import plan_from_options
 from common.plumbing.lifecycle import EXPECTED_ERRORS, network, positive, run_main, setup_logging, stop_on_signals
 from controller.recording.schema import RunMeta, RunMode
@@ -40,13 +40,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--orders", type=int, metavar="N",
                         help="on a fresh start, queue N orders (default: [production] of hubs.toml, if any)")
     parser.add_argument("--mix", metavar="VARIANT:WEIGHT,...", help="with --orders: the variants, repeating")
+    parser.add_argument("--execution", type=argument(Execution), choices=list(Execution),
+                        help="how a plan's steps wait for each other (default: [controller] execution)")
     parser.add_argument("-v", "--verbose", action="store_true")
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
                          fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False,
                          certs: str | None = None, record: RunMeta | None = None, orders: int | None = None,
-                         mix: str | None = None) -> int:
+                         mix: str | None = None, execution: Execution | None = None) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
     from common.config.security import identity_of
@@ -63,10 +65,11 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
     stop = stop_on_signals()
     async with ZenohBus(zconfig) as bus:
         service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold,
-                                    record=record, production=production)
+                                    record=record, production=production, execution=execution)
         log = logging.getLogger("statehub.controller")
-        log.info("controller %s: station %s, %d resources, %d operations; %s", service.controller_id,
-                 config.station.name, len(service.hubs_of), len(model.operations), security_banner(config))
+        log.info("controller %s: station %s, %d resources, %d operations, plans run in %s; %s",
+                 service.controller_id, config.station.name, len(service.hubs_of), len(model.operations),
+                 service.core.engine.execution, security_banner(config))
         if service.recorder.path is not None:
             log.info("recording the run into %s", service.recorder.path)
         await service.run(stop)
@@ -82,7 +85,8 @@ def serve(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db,
                                           fresh=args.fresh, mirror_wait_s=args.mirror_wait, hold=args.hold,
-                                          certs=args.certs, record=record, orders=args.orders, mix=args.mix))
+                                          certs=args.certs, record=record, orders=args.orders, mix=args.mix,
+                                          execution=args.execution))
     except ControllerConflict as exc:
         print(f"controller: {exc}", file=sys.stderr)
         return EXIT_CONFLICT

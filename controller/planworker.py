@@ -34,6 +34,7 @@ from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, replace
 from multiprocessing.connection import Connection
 
+from common.config.modes import DEFAULT_EXECUTION
 from common.model import Duration, Model
 from common.wire.ctl import PlannedAlone
 
@@ -64,7 +65,7 @@ class Timing:
     the model's, hubs.toml's `delay` over them) and the controller engine's own order."""
 
     durations: Mapping[str, Duration]
-    execution: Execution = Execution.TRACE
+    execution: Execution = DEFAULT_EXECUTION
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ import msgspec
 
 from common.bus.protocol import Bus
 from common.config.hubs_toml import StationConfig
+from common.config.modes import Execution
 from common.config.production import ProductionPlan
 from common.model import Kind, Model, Value
 from common.plumbing.sdnotify import Notifier
@@ -67,8 +68,9 @@ class ControllerService:
     def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
                  mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None,
                  planner_process: bool = True, hold: bool = False, record: RunMeta | None = None,
-                 production: ProductionPlan | None = None) -> None:
-        """`production`: the orders to queue on a fresh start (a book that never had one)."""
+                 production: ProductionPlan | None = None, execution: Execution | None = None) -> None:
+        """`production`: the orders to queue on a fresh start (a book that never had one); `execution`: the order
+        plans run in (default: `[controller] execution` of hubs.toml)."""
         self.config = config
         self.model = model
         self.bus = bus
@@ -77,7 +79,7 @@ class ControllerService:
         stack = build_controller_stack(model)
         self.compiled = stack.compiled
         self.clock = StepClock()  # the core's: one reading per step, what the recording and a replay use
-        self.core = stack.control_core(self.clock)
+        self.core = stack.control_core(self.clock, execution=execution or config.controller.execution)
         self.store = StateStore(db or config.controller.db)
         self.production = production
         self.orders = OrderFlow(OrderBook(self.store, model))
@@ -96,7 +98,8 @@ class ControllerService:
         self._dirty = asyncio.Event()
         self._last_persisted: dict[int, Value] = {}
         sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
-            record, station=config.station.name, model=config.station.model, config=config.path), model)
+            record, station=config.station.name, model=config.station.model, config=config.path,
+            execution=self.core.engine.execution), model)
         self.recorder = RunRecorder(self.core, self.clock, sink)
         # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
         self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,

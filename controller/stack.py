@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from common.config.modes import DEFAULT_EXECUTION, Execution
 from common.model import Model
 from common.model.compiled import CompiledModel
 
@@ -23,9 +24,11 @@ class ControllerStack:
     compiled: CompiledModel
     planner: Planner
 
-    def control_core(self, clock: Callable[[], float] = time.monotonic, *, budget: Budget | None = None) -> ControlCore:
-        """A control core (and its engine) on this stack's compiled model and planner."""
-        return ControlCore(self.compiled, self.planner, clock, budget=budget)
+    def control_core(self, clock: Callable[[], float] = time.monotonic, *, budget: Budget | None = None,
+                     execution: Execution = DEFAULT_EXECUTION) -> ControlCore:
+        """A control core (and its engine, running plans in `execution`) on this stack's compiled model and
+        planner."""
+        return ControlCore(self.compiled, self.planner, clock, budget=budget, execution=execution)
 
 
 def build_controller_stack(model: Model, *, prepare: bool = False) -> ControllerStack:

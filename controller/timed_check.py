@@ -22,6 +22,7 @@ import enum
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+from common.config.modes import DEFAULT_EXECUTION
 from common.model import Duration, Predicate, TransitionKind
 from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.durations import effect_owner
@@ -197,7 +198,7 @@ class TimedCheck:
     """Checks plans against the corner timings of one station's effect durations."""
 
     def __init__(self, compiled: CompiledModel, durations: Mapping[str, Duration],
-                 execution: Execution = Execution.TRACE) -> None:
+                 execution: Execution = DEFAULT_EXECUTION) -> None:
         """`durations`: each resource's interval (common/model/durations.py's table, by resource)."""
         self.compiled = compiled
         self.execution = execution

@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from common.config.hubs_toml import ConfigError, ConfigProblem, StationConfig, load_config, load_station
-from common.config.modes import DeviceMode, argument
+from common.config.modes import DEFAULT_EXECUTION, DeviceMode, Execution, argument
 from common.config.production import ProductionConfig, ProductionError, plan_from_options
 from common.model import DurationTable, Model, ParseError, TransitionKind, parse_predicate
 from common.model.durations import DurationSource, effect_owner
@@ -196,7 +196,8 @@ def cmd_up(args: argparse.Namespace) -> int:
         return up(Options(config=config, speed=args.speed, seed=args.seed, mode=args.mode, real=frozenset(args.real),
                           failure=failure,
                           time_limit=args.time_limit, resume=args.resume, hold=args.hold, record=not args.no_record,
-                          chaos=args.chaos, orders=args.orders, mix=args.mix, production=production))
+                          chaos=args.chaos, orders=args.orders, mix=args.mix, production=production,
+                          execution=args.execution))
     from controller.planner.policy import VIRTUAL_BUDGET
 
     from .local.inprocess import emulated_delays, run_in_process
@@ -207,8 +208,10 @@ def cmd_up(args: argparse.Namespace) -> int:
         in_process_plan = plan_from_options(args.orders, args.mix, ProductionConfig(), model, "--orders")
         if in_process_plan is not None:
             print(f"statehub: production: {in_process_plan.describe()}", flush=True)
+    execution = args.execution or (in_process_config.controller.execution if in_process_config is not None
+                                   else DEFAULT_EXECUTION)
     print(f"statehub: running station {model.name} in one process, emulated devices "
-          f"(speed x{args.speed}, seed {args.seed})", flush=True)
+          f"(speed x{args.speed}, seed {args.seed}, plans in {execution})", flush=True)
     budget = replace(VIRTUAL_BUDGET, first_expansions=args.plan_expansions, improve_expansions=args.improve_expansions)
     recording = None
     if not args.no_record:
@@ -216,12 +219,13 @@ def cmd_up(args: argparse.Namespace) -> int:
 
         config = args.config or (DEFAULT_CONFIG if args.model is None and Path(DEFAULT_CONFIG).is_file() else None)
         reference = args.model or (load_config(config).station.model if config else DEFAULT_MODEL)
-        recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget)
+        recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget,
+                                         execution=execution)
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None,
                              delays=emulated_delays(in_process_config) if in_process_config is not None else None,
                              realtime=args.realtime, time_limit=args.time_limit,
                              report=lambda line: print(line, flush=True), budget=budget, recording=recording,
-                             production=in_process_plan)
+                             production=in_process_plan, execution=execution)
     print()
     orders_done = summary.throughput.orders if summary.throughput is not None else 0
     done = (f"{orders_done}/{len(in_process_plan.orders)} orders" if in_process_plan is not None else
@@ -286,6 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--chaos", type=int, default=0, metavar="N",
                     help="kill -9 N random hubs or the controller at random moments of the run (from --seed); "
                          "each is restarted as its systemd unit would be")
+    up.add_argument("--execution", type=argument(Execution), choices=list(Execution),
+                    help="how a plan's steps wait for each other: the partial order (the operator works while the "
+                         "robot does), the trace, or one step after another (default: [controller] execution of "
+                         "hubs.toml, partial_order)")
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")

@@ -22,6 +22,9 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     db               = "var/controller.sqlite"   # persisted estimated state, relative to the working dir
     mirror_timeout_s = 1.0                       # mirror may lag the command this long before unhealthy
     stale_after_s    = 0.5                       # a resource state older than this is stale
+    execution        = "partial_order"           # how a plan's steps wait for each other: "partial_order" (causal
+                                                 # links), "trace" (shared variables), "sequence" (one by one);
+                                                 # `hubctl up --execution` overrides it (controller/deorder.py)
     listen  = ["tcp/0.0.0.0:7447"]               # optional: replaces [network].listen for the controller
     connect = []                                 # optional: replaces [network].connect for the controller
     [controller.recording]   # optional: dir = "var/runs", max_mb = 200, keep = 50 (controller/recording/settings.py)
@@ -84,7 +87,7 @@ from common.bus.zenoh_config import DEFAULT_MAX_MESSAGE_BYTES
 from common.config.errors import ConfigError, ConfigProblem, toml_problem, toml_type
 from common.config.hostnames import host_problem, user_problem
 from common.config.keylines import KeyLines
-from common.config.modes import DeviceMode, NetworkMode, SecurityMode, words
+from common.config.modes import DEFAULT_EXECUTION, DeviceMode, Execution, NetworkMode, SecurityMode, words
 from common.config.overview import OverviewConfig, parse_bind
 from common.config.production import (
     OrderEntry,
@@ -136,6 +139,7 @@ class ControllerConfig(msgspec.Struct, frozen=True):
     db: str = "var/controller.sqlite"
     mirror_timeout_s: Seconds = 1.0
     stale_after_s: Seconds = 0.5
+    execution: Execution = DEFAULT_EXECUTION  # the order plans run in, unless the timed check needs a stricter one
     listen: list[str] | None = None
     connect: list[str] | None = None
     recording: RecordingConfig = RecordingConfig()

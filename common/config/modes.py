@@ -1,5 +1,5 @@
 """The modes of hubs.toml, as the code compares them: how a device runs, how a process joins the
-network, how the station's links are protected.
+network, how the station's links are protected, how the controller's plans are executed.
 
 StrEnums: msgspec reads and writes each as its string, so hubs.toml, the command line and every
 file that holds one keep the words they had; code compares the members, never the words.
@@ -33,6 +33,27 @@ class SecurityMode(enum.StrEnum):
 
     TLS = "tls"  # mutual TLS on every link, access control by certificate
     INSECURE = "insecure"  # plain TCP: a single-machine `hubctl up` only
+
+
+class Execution(enum.StrEnum):
+    """How a plan's steps wait for each other (`[controller] execution`, `hubctl up --execution`;
+    controller/deorder.py)."""
+
+    # Causal links and threats: the operator works while the robot does. A plan that counts on an enabled effect
+    # waiting for it (the nutrunner's reset while a slow operator confirms pipe 1: the shortest plan records
+    # pipe 2 on pipe 1's torque) is left at the same place again and again when dispatched this early: plans are
+    # checked in time before use (controller/timed_check.py), and one this order breaks runs in a stricter one.
+    PARTIAL_ORDER = "partial_order"
+    TRACE = "trace"  # every earlier step sharing a variable, a command every earlier reader of its device
+    SEQUENCE = "sequence"  # every earlier step: the plan as the planner wrote it, one step after another
+
+    @classmethod
+    def _missing_(cls, value: object) -> Execution | None:
+        # Recordings made before hubs.toml could choose the order spelt it "partial-order".
+        return cls.PARTIAL_ORDER if value == "partial-order" else None
+
+
+DEFAULT_EXECUTION = Execution.PARTIAL_ORDER  # hubs.toml's, and every engine's without one
 
 
 def words(mode: type[enum.StrEnum]) -> tuple[str, ...]:

@@ -2,28 +2,16 @@
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from common.config.modes import Execution
 from common.model import TransitionKind
 from common.model.compiled import State
 
 if TYPE_CHECKING:
     from common.model.compiled import CompiledModel
-
-
-class Execution(enum.Enum):
-    """How a plan's steps wait for each other (controller/deorder.py)."""
-
-    # Causal links and threats: the operator works while the robot does. A plan that counts on an enabled effect
-    # waiting for it (the nutrunner's reset while a slow operator confirms pipe 1: the shortest plan records
-    # pipe 2 on pipe 1's torque) is left at the same place again and again when dispatched this early: plans are
-    # checked in time before use (controller/timed_check.py), and one this order breaks runs in a stricter one.
-    PARTIAL_ORDER = "partial-order"
-    TRACE = "trace"  # every earlier step sharing a variable, a command every earlier reader of its device
-    SEQUENCE = "sequence"  # every earlier step: the plan as the planner wrote it, one step after another
 
 
 @dataclass(frozen=True)

@@ -47,6 +47,7 @@ from typing import Any, TypedDict
 
 import msgspec
 
+from common.config.modes import Execution
 from common.model import Model, OperationState, Value
 from common.wire.ctl import ConsoleEvent, ConsoleRequest
 from common.wire.messages import HubStatus
@@ -149,6 +150,7 @@ class RunMeta(msgspec.Struct, kw_only=True):
     mode: RunMode = RunMode.SERVICE
     seed: int | None = None  # of emulated outcomes (up, in-process)
     budget: BudgetCounts | None = None  # planner counts when they bound the search (in-process)
+    execution: Execution | None = None  # the engine's own order (None: recorded before it could be chosen)
     requested: list[str] = msgspec.field(default_factory=list)  # operations requested at start
     started: float = 0.0  # wall clock (time.time())
     ended: float | None = None

@@ -15,13 +15,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from common.config.hubs_toml import StationConfig
+from common.config.modes import DEFAULT_EXECUTION, Execution
 from common.config.production import ProductionPlan
 from common.model import Duration, Model, OperationState
 from common.model.durations import as_duration
 from common.resources import durations_of
 from common.wire.ctl import NoPlanFound, PlanFound
 from controller.cycle import CycleReport, effect_seconds
-from controller.deorder import Execution
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.planner.policy import VIRTUAL_BUDGET
@@ -79,7 +79,7 @@ def run_in_process(
     report: Reporter | None = None,
     budget: Budget = VIRTUAL_BUDGET,
     recording: Sink | None = None,
-    execution: Execution = Execution.TRACE,
+    execution: Execution = DEFAULT_EXECUTION,
     production: ProductionPlan | None = None,
 ) -> RunSummary:
     """`delays`: seconds an effect of each resource takes at speed 1 (hubs.toml's `delay`; the device
@@ -91,8 +91,7 @@ def run_in_process(
     stack = build_controller_stack(model, prepare=True)
     compiled = stack.compiled
     clock = VirtualClock()
-    core = stack.control_core(clock, budget=budget)
-    core.engine.execution = execution  # the partial order is selectable here (deorder.py)
+    core = stack.control_core(clock, budget=budget, execution=execution)
     table = durations_of(model, {r: as_duration(d) for r, d in (delays or {}).items()})
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
                        effect_seconds(model, delays), {e.resource: e.duration for e in table.entries})

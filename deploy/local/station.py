@@ -24,7 +24,7 @@ from pathlib import Path
 from common.bus.station_net import security_banner
 from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import StationConfig, load_station
-from common.config.modes import DeviceMode
+from common.config.modes import DeviceMode, Execution
 from common.config.production import ProductionPlan
 from common.config.security import operator_identity
 from common.model import Model, OperationState
@@ -97,6 +97,7 @@ class Options:
     orders: int | None = None
     mix: str | None = None
     production: ProductionPlan | None = None
+    execution: Execution | None = None  # `--execution`: the controller's order of plan steps over hubs.toml's
 
 
 def child_commands(config: StationConfig, options: Options, port: int, certs: Path | None = None) -> list[Child]:
@@ -108,6 +109,8 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
         controller.append("--hold")
     if options.orders is not None:
         controller += ["--orders", str(options.orders)] + (["--mix", options.mix] if options.mix else [])
+    if options.execution is not None:
+        controller += ["--execution", options.execution]
     controller += ["--run-mode", "up", "--run-seed", str(options.seed)] if options.record else ["--no-record"]
     # A restarted controller resumes from its SQLite file: only its first start may forget it.
     children = [Child("controller", controller + secured, run_dir / "controller.log",
@@ -259,7 +262,8 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
     scheme = "tls" if certs is not None else "tcp"
     devices = f"{options.mode or 'as in ' + options.config}" + "".join(f", {r} real" for r in sorted(options.real))
     say(f"statehub up: station {config.station.name}, {len(config.hubs)} hubs + controller as separate processes "
-        f"on 127.0.0.1:{port}, devices {devices}, speed x{options.speed}")
+        f"on 127.0.0.1:{port}, devices {devices}, speed x{options.speed}, "
+        f"plans in {options.execution or config.controller.execution}")
     say(f"  {security_banner(config)}" + (f" (this run's certificates: {certs})" if certs else ""))
     say(f"  logs in {options.run_dir}/")
     console = f" --as {operator_identity(config).name} --certs {certs}" if certs else ""

@@ -31,6 +31,7 @@ from typing import Any
 
 import msgspec
 
+from common.config.modes import Execution
 from common.model import Model
 from common.model.compiled import CompiledModel
 from common.resources import durations_of
@@ -39,7 +40,6 @@ from common.wire.ctl import OrderFinished
 from controller.control import ControlCore, PlanRequest
 from controller.loop import ControlLoop
 from controller.planner import Budget, NoPlan, Plan, PlanStats
-from controller.planner.plans import Execution
 from controller.planner.validate import plan_from_moves
 from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.reader import Record, Run
@@ -70,6 +70,8 @@ DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN
 # The event log's entries the core decides; the others are the service's notes (hub alive, mirrors missing).
 CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request", "forbidden_state",
                          "forbidden_state_cleared", *ORDER_EVENTS})
+# The engine's own order of a run recorded before `[controller] execution` existed (RunMeta.execution None).
+EXECUTION_BEFORE_THE_SETTING = Execution.TRACE
 
 
 class ReplayError(ValueError):
@@ -157,7 +159,9 @@ class Replayer:
         stack = build_controller_stack(self.model, prepare=self.replans)
         self.compiled = stack.compiled
         self.clock = VirtualClock()
-        self.core: ControlCore = stack.control_core(self.clock, budget=budget)
+        # A plan runs in the order its record names, else in the engine's own, the run's.
+        self.core: ControlCore = stack.control_core(self.clock, budget=budget,
+                                                    execution=meta.execution or EXECUTION_BEFORE_THE_SETTING)
         self.sink = ListSink()
         # The live controller commands the resources of its hubs.toml: those the recording saw commanded are
         # a subset of the model's, and a resource nobody commands has no command to compare.
