@@ -170,15 +170,15 @@ def test_a_command_waits_for_the_earlier_steps_that_read_its_device() -> None:
 
 
 def test_an_effect_seen_before_a_record_that_needed_the_old_value_is_a_deviation() -> None:
-    """As a trace (the default execution): the operator is sent at once, and the camera's early effect is a
-    deviation."""
+    """As a trace: the operator is sent at once, and the camera's early effect is a deviation (the partial order
+    holds the operator back: the next test)."""
     base = lamp_and_zone()
     seen = estimated("e.seen_e", initial=False)
     record = tracking("e.record", all_of("a.on_m", "z.zone_m == outside", "!e.seen_e"), "e.seen_e := true")
     c = CompiledModel(Model("lzr", base.resources, (seen,), (record,)))
     plan = plan_for(c, c.initial(), "e.seen_e && z.zone_m == shared")
-    progress = PlanProgress(c, plan)
-    engine = Engine(c)
+    progress = PlanProgress(c, plan, execution=Execution.TRACE)
+    engine = Engine(c, execution=Execution.TRACE)
     tick = engine.tick(c.initial(), progress=progress, disabled=frozenset({"a"}))
     assert tick.fired == ["o.send.enabled"]
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=frozenset({"a"}))
