@@ -127,6 +127,8 @@ CASES = [
      'mode = "simulate"', "unknown mode 'simulate' (expected one of: emulate, sim, real)"),
     ("unknown network mode", 'mode = "peer"', 'mode = "router"', "network.mode", 'mode = "router"',
      "unknown mode 'router' (expected one of: peer, client)"),
+    ("unknown execution", 'host = "decs"\n', 'host = "decs"\nexecution = "parallel"\n', "controller.execution",
+     'execution = "parallel"', "unknown execution 'parallel' (expected one of: partial_order, trace, sequence)"),
     ("duplicate hub", "[hubs.rfidcam]\n", "[hubs.pi-tool]\n", "hubs.pi-tool", "[hubs.pi-tool]",
      "duplicate hub name 'pi-tool'"),
     ("resource in two hubs", "[hubs.rfidcam.devices.rfid]", "[hubs.rfidcam.devices.nr]",

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from common.config.hubs_toml import load_config
+from common.config.modes import DEFAULT_EXECUTION
 from common.model import Model, OperationState
 from common.resources import durations_of
 from controller.control import PlanRequest
@@ -96,18 +97,18 @@ async def test_the_planner_process_sends_the_first_plan_at_once_then_its_verdict
     assert verdict.plan.execution is STRICTEST
     # The worker learnt the race: the same request again gets a plan no timing breaks in the engine's order.
     _, verdict = first_plan_and_verdict(again)
-    assert verdict.passed and not verdict.refusals and verdict.plan.execution is Execution.TRACE, verdict
+    assert verdict.passed and not verdict.refusals and verdict.plan.execution is DEFAULT_EXECUTION, verdict
 
 
 async def test_the_feeder_stations_first_plan_is_found_safe_in_the_engines_order() -> None:
     model = build_model()
     answers, _ = await first_and_verdict(FEEDER, model, CONFIG, IMPROVING)
     first, verdict = first_plan_and_verdict(answers)
-    assert verdict.passed and verdict.plan.execution is Execution.TRACE
+    assert verdict.passed and verdict.plan.execution is DEFAULT_EXECUTION
     assert verdict.plan.steps == first.steps
     # An improvement goes out only checked in the engine's order.
     improvements = [a.result for a in answers[2:] if isinstance(a.result, Plan)]
-    assert all(plan.execution is Execution.TRACE for plan in improvements), improvements
+    assert all(plan.execution is DEFAULT_EXECUTION for plan in improvements), improvements
 
 
 def test_the_verdict_lets_the_plan_under_way_run_in_the_order_it_allows() -> None:
@@ -155,7 +156,7 @@ async def test_hubctl_up_checks_its_plans_in_time_and_ends_with_the_cycle_report
     assert "bound" in lines[report] and "cycle/bound" in lines[report], output
     assert {line.split()[0] for line in lines[report + 1:report + 4]} == {"r", "g", "f"}, output
     controller_log = (tmp_path / "controller.log").read_text()
-    assert "plan checked in time: it runs in trace" in controller_log, controller_log[-3000:]
+    assert f"plan checked in time: it runs in {DEFAULT_EXECUTION}" in controller_log, controller_log[-3000:]
     (recording,) = (tmp_path / "runs").glob("*.sqlite")
     with open_run(recording) as run:
         replayed = Replayer(run).replay()
