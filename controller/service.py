@@ -98,8 +98,7 @@ class ControllerService:
         self._dirty = asyncio.Event()
         self._last_persisted: dict[int, Value] = {}
         sink = None if record is None else open_recording(config.controller.recording, msgspec.structs.replace(
-            record, station=config.station.name, model=config.station.model, config=config.path,
-            execution=self.core.engine.execution), model)
+            record, station=config.station.name, model=config.station.model, config=config.path), model)
         self.recorder = RunRecorder(self.core, self.clock, sink)
         # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
         self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,

@@ -219,8 +219,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 
         config = args.config or (DEFAULT_CONFIG if args.model is None and Path(DEFAULT_CONFIG).is_file() else None)
         reference = args.model or (load_config(config).station.model if config else DEFAULT_MODEL)
-        recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget,
-                                         execution=execution)
+        recording = in_process_recording(model, reference, config, seed=args.seed, budget=budget)
     summary = run_in_process(model, speed=args.speed, seed=args.seed, failure=failure or None,
                              delays=emulated_delays(in_process_config) if in_process_config is not None else None,
                              realtime=args.realtime, time_limit=args.time_limit,

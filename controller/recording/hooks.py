@@ -111,6 +111,9 @@ class RunRecorder:
         self.command_paths = {r: paths for r, paths in self.command_paths.items() if paths}
         if sink is not None:
             core.listener = self
+            # The engine's own order, whoever opened the recording: a replay runs the plans recorded without one
+            # (PlanRecord.execution "") in it.
+            sink.update_meta(execution=core.engine.execution)
 
     @property
     def path(self) -> Path | None:

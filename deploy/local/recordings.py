@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from common.config.hubs_toml import RecordingConfig, load_config
-from common.config.modes import Execution
 from common.model import Model
 from controller.planner import Budget
 from controller.recording.hooks import open_recording
@@ -22,12 +21,13 @@ def recording_settings(config_path: str | Path | None) -> RecordingConfig:
 
 
 def in_process_recording(model: Model, model_reference: str, config_path: str | None, *, seed: int,
-                         budget: Budget, execution: Execution) -> RecordingWriter | None:
+                         budget: Budget) -> RecordingWriter | None:
     """The recording of an `up --in-process` run: its planner counts are in it, so a replay plans alike."""
     counts = BudgetCounts(first_expansions=budget.first_expansions, improve_expansions=budget.improve_expansions,
                           symbolic_layers=budget.symbolic_layers)
     meta = RunMeta(station=model.name, model=model_reference, config=config_path or "", mode=RunMode.IN_PROCESS,
-                   seed=seed, budget=counts, execution=execution)
+                   seed=seed,
+                   budget=counts)
     return open_recording(recording_settings(config_path), meta, model)
 
 
