@@ -12,13 +12,15 @@ One ability per task T (a template instantiated in a loop):
 The button release is one effect shared by all tasks (`human.release_button`): one per
 task would be the same transition many times over and only widen the planner's search.
 
-An operator is never asked to do what is already done: the instruction of T is given only while
-`instruct_when[T]` holds (the filter still absent), by default while what T is for does not hold yet:
-what its confirmation records (`on_confirm[T]`), or, for a task that records nothing, its
-`confirm_when[T]` (the pipe plate tightened). Without it a planner may ask for a task again as a
-detour (tighten pipe 1 once more, because that makes the operator fetch the nutrunner), and a
-person would be told to redo finished work. The default cannot know that a recorded value may move
-on (a filter mounted, then tightened): a station whose product states do says `instruct_when`.
+An operator is not asked for a task that is already done: a task that records nothing and has a
+`confirm_when[T]` (the pipe plate tightened) is instructed only while that condition does not hold
+yet; any task is instructed only while `instruct_when[T]` holds, where the station says so. Without
+it a planner may ask for a task again as a detour (tighten pipe 1 once more, because that makes the
+operator fetch the nutrunner for pipe 2), and a person would be told to redo finished work. A task
+that records (`on_confirm`) gets no such guard by default: on the reference station a guard reading
+the product on the instruction of placing the bolts or mounting a filter, even one variable, made the
+planner's proofs of "shortest" minutes longer (tests/bench/bench_planner.py's reference sets), and
+re-asking a recording task gains a plan nothing but the side effects of the instruction.
 
 `confirm_when[T]` is what must physically hold before the operator can finish T (the
 operator confirms the ladder frame only once it sits on the engine): a guard on the
@@ -33,8 +35,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from common.model import Ability, Assign, Domain, Duration, Phase, Resource, ability, command, measured
-from common.model.actions import as_action
-from common.model.predicates import Const, Not, Predicate, all_of, as_predicate, eq
+from common.model.predicates import Const, Not, Predicate, as_predicate
 from common.model.transitions import ActionsLike
 
 # How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
@@ -85,11 +86,7 @@ def _as_list(actions: ActionsLike) -> list[Assign | str]:
 
 
 def _not_done_yet(records: ActionsLike, condition: object) -> Predicate:
-    """The task's purpose does not hold yet: not every value its confirmation records is there, or, when it
-    records nothing, its confirm condition does not hold (no condition: always instructable)."""
-    recorded = [eq(action.path, action.value) for action in map(as_action, _as_list(records))]
-    if recorded:
-        return Not(all_of(*recorded))
-    if condition is None:
+    """A task that records nothing is for its confirm condition: not instructed once it holds."""
+    if _as_list(records) or condition is None:
         return Const(True)
     return Not(as_predicate(condition))

@@ -162,8 +162,7 @@ def build_model() -> Model:
         agv(),
         mir(),
         rfid(),
-        operator("human", OPERATOR_TASKS, confirm_when=_operator_can_confirm(), on_confirm=_operator_confirms(),
-                 instruct_when=_operator_is_asked()),
+        operator("human", OPERATOR_TASKS, confirm_when=_operator_can_confirm(), on_confirm=_operator_confirms()),
         camera("cam", "human", TASK_ZONES),
         ur("ur", POSES, ALLOWED_MOVES, HOME),
         rsp("rsp", "ur", "dock", DOCK_POSES),
@@ -212,18 +211,6 @@ def _operator_can_confirm() -> dict[str, object]:
         LIFT_FRAME: all_of(f"{FRAME} == lifted", f"ur.pos_m == {ABOVE_ENGINE}", "lift.pos_m == down"),
         PLACE_BOLTS: f"{FRAME} == placed",
         **{task: f"{pipe(k)} == tightened" for k, task in zip(PIPES, TIGHTEN_PIPE_TASKS, strict=True)},
-    }
-
-
-def _operator_is_asked() -> dict[str, object]:
-    # A task is asked for only while its part is where the task starts from: a bolt or filter
-    # moves on from placed or mounted to tightened, so the operator's default (not while what the
-    # task records holds) would ask for it again once the robot has tightened it.
-    return {
-        PLACE_BOLTS: all_of(*(f"{bolt(i)} == absent" for i in BOLTS)),
-        **{task: f"{oil_filter(k)} == absent" for k, task in zip(FILTERS, MOUNT_FILTER_TASKS, strict=True)},
-        MOUNT_OIL_PIPES: all_of(*(f"{pipe(k)} == absent" for k in PIPES)),
-        **{task: f"{pipe(k)} == mounted" for k, task in zip(PIPES, TIGHTEN_PIPE_TASKS, strict=True)},
     }
 
 
