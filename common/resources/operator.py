@@ -12,15 +12,11 @@ One ability per task T (a template instantiated in a loop):
 The button release is one effect shared by all tasks (`human.release_button`): one per
 task would be the same transition many times over and only widen the planner's search.
 
-An operator is not asked for a task that is already done: a task that records nothing and has a
-`confirm_when[T]` (the pipe plate tightened) is instructed only while that condition does not hold
-yet; any task is instructed only while `instruct_when[T]` holds, where the station says so. Without
-it a planner may ask for a task again as a detour (tighten pipe 1 once more, because that makes the
-operator fetch the nutrunner for pipe 2), and a person would be told to redo finished work. A task
-that records (`on_confirm`) gets no such guard by default: on the reference station a guard reading
-the product on the instruction of placing the bolts or mounting a filter, even one variable, made the
-planner's proofs of "shortest" minutes longer (tests/bench/bench_planner.py's reference sets), and
-re-asking a recording task gains a plan nothing but the side effects of the instruction.
+`instruct_when[T]` (optional) is when T may be instructed at all (default: whenever the operator is
+idle). A station whose tasks must not be asked for again once done says so here; note that a guard
+reading the product on the instruction of a task the robot's work follows (placing the bolts,
+mounting a filter) made the planner's proofs of "shortest" on the reference station minutes longer,
+so the reference station sets none (see the closing note of issue 21's session).
 
 `confirm_when[T]` is what must physically hold before the operator can finish T (the
 operator confirms the ladder frame only once it sits on the engine): a guard on the
@@ -35,7 +31,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from common.model import Ability, Assign, Domain, Duration, Phase, Resource, ability, command, measured
-from common.model.predicates import Const, Not, Predicate, as_predicate
 from common.model.transitions import ActionsLike
 
 # How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
@@ -68,8 +63,7 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
         abilities.append(ability(
             f"{name}.{task}",
             enabled=Phase(idle, deliberate=f"{instr_c.path} := {task}",
-                          guard=instructable[task] if task in instructable
-                          else _not_done_yet(records.get(task, ()), conditions.get(task))),
+                          guard=instructable.get(task, True)),
             executing=Phase(given & ~done_m, effects=[f"{done_m.path} := true"], guard=conditions.get(task, True)),
             finished=Phase(given & done_m,
                            automatic=[f"{instr_c.path} := {NO_TASK}", *_as_list(records.get(task, ()))]),
@@ -84,9 +78,3 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
 def _as_list(actions: ActionsLike) -> list[Assign | str]:
     return [actions] if isinstance(actions, str | Assign) else list(actions)
 
-
-def _not_done_yet(records: ActionsLike, condition: object) -> Predicate:
-    """A task that records nothing is for its confirm condition: not instructed once it holds."""
-    if _as_list(records) or condition is None:
-        return Const(True)
-    return Not(as_predicate(condition))
