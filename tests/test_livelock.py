@@ -53,13 +53,18 @@ def test_asked_again_from_the_same_state_the_planner_searches_instead_of_handing
     assert isinstance(answer, Plan) and answer.stats.method != "reused"
 
 
-def test_the_same_goals_asked_twenty_times_from_one_state_go_to_error_and_wait_for_the_operator() -> None:
-    core = lamp_core()
-    for _ in range(GIVE_UP_AFTER - 1):
+def plan_and_restart(core: ControlCore, times: int) -> None:
+    """`times` rounds: a plan for LampOn asked and taken, then a restart from the same state."""
+    for _ in range(times):
         request = core.plan_request()
         assert request is not None and set(request.goals) == {"LampOn"}
         core.adopt(request, core.solve(request))
         core.load({})
+
+
+def test_the_same_goals_asked_twenty_times_from_one_state_go_to_error_and_wait_for_the_operator() -> None:
+    core = lamp_core()
+    plan_and_restart(core, GIVE_UP_AFTER - 1)
     request = core.plan_request()
     assert request is not None and not request.goals
     assert core.op_state("LampOn") is OperationState.ERROR
@@ -95,11 +100,7 @@ def test_replans_because_health_changes_are_no_circle_however_many_from_one_stat
     assert request is not None
     core.adopt(request, core.solve(request))
     core.load({})  # rounds that count still do: the 20th from this state (the first request was one) gives up
-    for _ in range(GIVE_UP_AFTER - 2):
-        request = core.plan_request()
-        assert request is not None and set(request.goals) == {"LampOn"}
-        core.adopt(request, core.solve(request))
-        core.load({})
+    plan_and_restart(core, GIVE_UP_AFTER - 2)
     request = core.plan_request()
     assert request is not None and not request.goals
     assert core.op_state("LampOn") is OperationState.ERROR
