@@ -290,9 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="kill -9 N random hubs or the controller at random moments of the run (from --seed); "
                          "each is restarted as its systemd unit would be")
     up.add_argument("--execution", type=argument(Execution), choices=list(Execution),
-                    help="how a plan's steps wait for each other: the partial order (the operator works while the "
-                         "robot does), the trace, or one step after another (default: [controller] execution of "
-                         "hubs.toml, partial_order)")
+                    help="how a plan's steps wait for each other: the trace, the partial order (the operator works "
+                         "while the robot does), or one step after another (default: [controller] execution of "
+                         "hubs.toml, trace)")
     up.add_argument("--in-process", action="store_true",
                     help="run controller and emulated devices in this one process, in virtual time (no Zenoh)")
     up.add_argument("--realtime", action="store_true", help="with --in-process: wait through emulated delays")

@@ -22,8 +22,8 @@ Schema (every key not listed is an error, except a device's driver parameters)::
     db               = "var/controller.sqlite"   # persisted estimated state, relative to the working dir
     mirror_timeout_s = 1.0                       # mirror may lag the command this long before unhealthy
     stale_after_s    = 0.5                       # a resource state older than this is stale
-    execution        = "partial_order"           # how a plan's steps wait for each other: "partial_order" (causal
-                                                 # links), "trace" (shared variables), "sequence" (one by one);
+    execution        = "trace"                   # how a plan's steps wait for each other: "trace" (shared
+                                                 # variables), "partial_order" (causal links), "sequence" (one by one);
                                                  # `hubctl up --execution` overrides it (controller/deorder.py)
     listen  = ["tcp/0.0.0.0:7447"]               # optional: replaces [network].listen for the controller
     connect = []                                 # optional: replaces [network].connect for the controller

@@ -96,6 +96,7 @@ async def mirrored_at(states: Subscription[Sample], codec: Codec, wanted: int, t
         if state.mirror is not None and state.mirror.seq == wanted:
             return time.perf_counter()
 
+
 @dataclass
 class Step:
     resources: int
