@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
+import operator
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -156,9 +158,9 @@ def corner_timings(compiled: CompiledModel, durations: Mapping[str, Duration]) -
     varying = sorted({r for r in owner.values() if not durations[r].is_fixed})
     for r in varying:
         timings.append(Timing(f"{r}'s effects at their earliest, the others' at their latest",
-                              seconds(lambda other, r=r: other == r)))  # type: ignore[misc]
+                              seconds(functools.partial(operator.eq, r))))
         timings.append(Timing(f"{r}'s effects at their latest, the others' at their earliest",
-                              seconds(lambda other, r=r: other != r)))  # type: ignore[misc]
+                              seconds(functools.partial(operator.ne, r))))
     unique: dict[tuple[tuple[str, float], ...], Timing] = {}
     for timing in timings:
         unique.setdefault(tuple(sorted(timing.seconds.items())), timing)

@@ -14,6 +14,7 @@ import asyncio
 import re
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -178,12 +179,12 @@ async def _add_once(bus: ZenohBus, keys: Keys) -> OrdersReply:
     raise AssertionError(f"the orders were never added: {added.reason}")
 
 
-async def _up_with_client(config: Path, **options: object) -> tuple[int, str, list[str]]:
+async def _up_with_client(config: Path, **options: Any) -> tuple[int, str, list[str]]:
     lines: list[str] = []
     plan = ProductionPlan(mixed({"full": 1, "light": 1}, 5), "test")
     client = asyncio.create_task(_client(config, lines))
     code = await run_station(Options(config=str(config), run_dir=config.parent / "up", time_limit=600.0, speed=4.0,
-                                     orders=5, mix="full:1,light:1", production=plan, **options),  # type: ignore[arg-type]
+                                     orders=5, mix="full:1,light:1", production=plan, **options),
                              say=lines.append)
     return code, "\n".join(lines), await client
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import pytest
@@ -48,9 +49,9 @@ def info() -> StationInfo:
 
 
 def status(**fields: object) -> StatusMessage:
-    base: dict[str, object] = dict(station="fault_station", controller="ctl-1", time=100.0, uptime=12.0)
+    base: dict[str, Any] = dict(station="fault_station", controller="ctl-1", time=100.0, uptime=12.0)
     base.update(fields)
-    return StatusMessage(**base)  # type: ignore[arg-type]
+    return StatusMessage(**base)
 
 
 # --- the picture ---------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import pytest
@@ -32,7 +33,7 @@ def no_keepalive(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(web, "KEEPALIVE_S", 3600.0)
 
 
-async def next_event(events: ClientResponse) -> tuple[str, object]:
+async def next_event(events: ClientResponse) -> tuple[str, Any]:
     async with asyncio.timeout(EVENT_WAIT_S):
         block = await events.content.readuntil(b"\n\n")
     name_line, data_line = block.decode().strip().split("\n")
@@ -61,12 +62,12 @@ async def test_the_station_page_gets_every_picture_and_the_gantt_data_when_it_ch
     assert [name for name, _ in received] == ["picture", "gantt", "picture", "picture", "gantt"]
     assert [_operation_state(data) for name, data in received if name == "picture"] == [
         None, "executing", "finished"]
-    assert [data["note"] for name, data in received if name == "gantt"] == [  # type: ignore[index]
+    assert [data["note"] for name, data in received if name == "gantt"] == [
         "reading the run's recording ...", "another run"]
 
 
-def _operation_state(picture: object) -> str | None:
-    operations = picture["operations"]  # type: ignore[index]
+def _operation_state(picture: Any) -> str | None:
+    operations = picture["operations"]
     return operations[0]["state"] if operations else None
 
 
@@ -79,4 +80,4 @@ async def test_the_site_page_gets_every_site_picture() -> None:
         second = await next_event(events)
         events.close()
     assert first == ("site", msgspec.to_builtins(SitePicture("line", "connecting to the stations ...", [], [])))
-    assert second[0] == "site" and second[1]["headline"] == "1/2 products left the last station"  # type: ignore[index]
+    assert second[0] == "site" and second[1]["headline"] == "1/2 products left the last station"

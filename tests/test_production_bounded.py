@@ -3,6 +3,8 @@ number of orders. Counted in structures, not bytes: the RSS figure is tests/benc
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from common.config.production import ProductionPlan, mixed
@@ -36,8 +38,8 @@ def test_what_the_loop_keeps_per_order_does_not_grow_with_the_orders(monkeypatch
     sizes: list[int] = []
     tick = ControlLoop.tick
 
-    def counting_tick(loop: ControlLoop, *args: object, **kwargs: object) -> object:
-        ticked = tick(loop, *args, **kwargs)  # type: ignore[arg-type]
+    def counting_tick(loop: ControlLoop, *args: Any, **kwargs: Any) -> object:
+        ticked = tick(loop, *args, **kwargs)
         if any(type(event).__name__ == "OrderFinished" for event in ticked.orders):
             assert loop.orders is not None
             sizes.append(sum(len(spans) for spans in loop.cycle.spans.values()) + len(loop.orders.finished)
@@ -64,8 +66,8 @@ def test_over_orders_the_caches_the_event_log_and_the_order_books_tables_stop_gr
     tick = ControlLoop.tick
     seen: list[ControlLoop] = []
 
-    def counting_tick(loop: ControlLoop, *args: object, **kwargs: object) -> object:
-        ticked = tick(loop, *args, **kwargs)  # type: ignore[arg-type]
+    def counting_tick(loop: ControlLoop, *args: Any, **kwargs: Any) -> object:
+        ticked = tick(loop, *args, **kwargs)
         if any(isinstance(event, OrderFinished) for event in ticked.orders):
             core, flow = loop.core, loop.orders
             assert flow is not None

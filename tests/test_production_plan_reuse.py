@@ -5,6 +5,7 @@ home): the satisficing member's answer is remembered per question (controller/pl
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -22,9 +23,9 @@ def counting_greedy(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls: list[int] = []
     search = portfolio_module.greedy
 
-    def counted(*args: object, **kwargs: object) -> object:
+    def counted(*args: Any, **kwargs: Any) -> object:
         calls.append(1)
-        return search(*args, **kwargs)  # type: ignore[arg-type]
+        return search(*args, **kwargs)
 
     monkeypatch.setattr(portfolio_module, "greedy", counted)
     return calls

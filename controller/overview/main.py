@@ -90,8 +90,9 @@ async def run_overview(config_path: str, *, bind: str | None = None, connect: Se
             for task in (following, stopping):
                 task.cancel()
             await asyncio.gather(following, stopping, return_exceptions=True)
-            if following in done and following.exception() is not None:
-                raise following.exception()  # type: ignore[misc]
+            failure = following.exception() if following in done else None
+            if failure is not None:
+                raise failure
         finally:
             await runner.cleanup()
     return 0

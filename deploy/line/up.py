@@ -193,8 +193,9 @@ async def _run_line(options: LineOptions, say: Say, line: LineConfig, certs: Pat
                 result.finished = True
                 await _settle(overview, total)
                 break
-            if routers.gave_up or processes.gave_up:
-                say((routers.gave_up or processes.gave_up).message())  # type: ignore[union-attr]
+            gave_up = routers.gave_up or processes.gave_up
+            if gave_up:
+                say(gave_up.message())
                 break
             for kill in [k for k in kills if first >= k.after_products]:
                 kills.remove(kill)

@@ -15,13 +15,20 @@ from common.resources.operator import NO_TASK
 from common.resources.operator_confirm import confirm_refusal, confirmation_effect
 
 
+def _as_sequence(value: object) -> tuple[object, ...]:
+    """The operator resource's `tasks` parameter (common/resources/operator.py stores a tuple)."""
+    if not isinstance(value, (tuple, list)):
+        raise TypeError(f"the operator's 'tasks' parameter is {value!r}, not a list of task names")
+    return tuple(value)
+
+
 class OperatorButton:
     def __init__(self, model: Model, resource: str, on_change: Callable[[], None] = lambda: None) -> None:
         self.model = model
         self.resource = resource
         self.on_change = on_change  # told after every change of what the page shows
         spec = model.resource_by_name[resource]
-        self.tasks: tuple[str, ...] = tuple(spec.parameters.get("tasks", ()))  # type: ignore[arg-type]
+        self.tasks: tuple[str, ...] = tuple(str(task) for task in _as_sequence(spec.parameters.get("tasks", ())))
         self.instr_path, self.done_path = f"{resource}.instr_c", f"{resource}.done_m"
         guards = [model.transition_by_name[confirmation_effect(resource, task)].guard for task in self.tasks]
         own = {self.instr_path, self.done_path}
