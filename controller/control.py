@@ -32,6 +32,7 @@ from common.wire.ctl import (
 
 from .engine import Engine, LostEffect, PlanProgress, TickResult
 from .events import EventLog
+from .kept_product import KeptProduct
 from .livelock import PLAN_FAILED, LivelockWatch, Repeat
 from .livelock import RETRIES as LIVELOCK_RETRIES
 from .planner import Budget, NoPlan, Plan, Planner
@@ -59,6 +60,8 @@ class PlanRequest:
     disabled: frozenset[str]
     reason: ReplanCause = AT_START  # why a plan is due
     reuse: bool = True  # False: the remembered plan for these goals is not handed back (controller/livelock.py)
+    # Finished operations' product goals the plan must leave holding (controller/kept_product.py).
+    keep: dict[str, Predicate] = field(default_factory=dict)
 
 
 @dataclass
@@ -125,6 +128,7 @@ class ControlCore:
         self.measured_indices = {p: compiled.index[p] for p in self.model.paths_of_kind(Kind.MEASURED)}
         self.op_index = {op.name: compiled.index[op.state_path] for op in self.model.operations}
         self.livelock = LivelockWatch()
+        self.kept_product = KeptProduct(compiled)
         self._lost: LostEffect | None = None  # why the plan just dropped failed, if an effect it needed was lost
         self._livelock_attempts: dict[str, int] = {}  # by operation, since an operation last finished
         self._livelocks_said: set[str] = set()  # effects diagnosed lost since an operation last finished
@@ -282,8 +286,9 @@ class ControlCore:
             self.events.replans += 1
             self.events.log.emit(Replanned(self.need_plan_reason))
         reason, self.need_plan_reason = self.need_plan_reason, None
+        keep = self.kept_product.goals(self.state, [*goals, *self.requested]) if goals else {}
         return PlanRequest(self.generation, self.state, goals, self.disabled, reason,
-                           reuse=repeat is Repeat.FIRST)
+                           reuse=repeat is Repeat.FIRST, keep=keep)
 
     def _repeat(self, goals: Mapping[str, Predicate], cause: ReplanCause) -> Repeat:
         """Count this request; asked again in a loop that loses an effect, or too often, the goals go to error.

@@ -7,6 +7,8 @@ virtual time they are counts of expanded states, so that a seed reproduces a run
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from collections.abc import Callable, Generator, Mapping
 from typing import Protocol
 
@@ -18,6 +20,8 @@ from .planner import Planner
 from .plans import NoPlan, Plan
 from .portfolio import Budget
 from .reuse import memory_key
+
+log = logging.getLogger("statehub.controller.planner")
 
 FIRST_ANSWER_S = 3.0  # the satisficing member's wall-clock limit (it answers well inside it)
 IMPROVE_S = 10.0  # then A* and the symbolic member, unless a newer request comes
@@ -54,26 +58,35 @@ class PlanQuestion(Protocol):
     def disabled(self) -> frozenset[str]: ...
     @property
     def reuse(self) -> bool: ...  # False: the same goals came back from a state without progress (livelock.py)
+    @property
+    def keep(self) -> Mapping[str, Predicate]: ...  # finished operations' goals to leave holding (kept_product.py)
 
 
 Answered = tuple[Plan | NoPlan | None, PlannedAlone | None]
 
 
 def anytime_answers(planner: Planner, question: PlanQuestion, budget: Budget) -> Generator[Answered, None, None]:
-    """The answers to one request: the portfolio's for all goals together; if it neither finds a plan nor
-    shows one impossible, the first goal alone that has one (progress over minimality, as the original
-    planner did for hard cases), with a note that says so."""
+    """The answers to one request: the portfolio's for all goals together, the kept ones included; if none
+    reaches them with the kept goals, the same without those; if it neither finds a plan nor shows one
+    impossible, the first goal alone that has one (progress over minimality, as the original planner did
+    for hard cases), with a note that says so. Plans name the request's goals only."""
     if not question.goals:
         yield None, None
         return
-    if not question.reuse:  # the controller saw this request go round in circles: no remembered plan
-        planner.memory.forget(memory_key(question.goals, question.disabled))
+    kept = {name: goal for name, goal in question.keep.items() if name not in question.goals}
+    attempts = [{**question.goals, **kept}, dict(question.goals)] if kept else [dict(question.goals)]
     last: Plan | NoPlan | None = None
-    for last in planner.plan_anytime(question.start, question.goals, question.disabled, budget):
+    for goals in attempts:
+        if not question.reuse:  # the controller saw this request go round in circles: no remembered plan
+            planner.memory.forget(memory_key(goals, question.disabled))
+        for last in planner.plan_anytime(question.start, goals, question.disabled, budget):
+            if isinstance(last, Plan):
+                yield _naming_only(last, question.goals), None
         if isinstance(last, Plan):
-            yield last, None
-    if isinstance(last, Plan):
-        return
+            return
+        if len(goals) > len(question.goals):
+            log.warning("no plan reaches %s and keeps %s as finished (%s): planning without keeping them",
+                        ", ".join(question.goals), ", ".join(kept), last)
     assert isinstance(last, NoPlan)
     if not last.proven and len(question.goals) > 1:
         for name, goal in question.goals.items():
@@ -82,6 +95,13 @@ def anytime_answers(planner: Planner, question: PlanQuestion, budget: Budget) ->
                 yield single, PlannedAlone(name, len(question.goals), last.reason)
                 return
     yield last, None
+
+
+def _naming_only(plan: Plan, goals: Mapping[str, Predicate]) -> Plan:
+    """The plan as the answer to the request: it names the request's goals, not the kept ones."""
+    if len(plan.goals) == len(goals):
+        return plan
+    return dataclasses.replace(plan, goals=tuple(name for name in plan.goals if name in goals))
 
 
 def solve_goals(planner: Planner, question: PlanQuestion, budget: Budget) -> Answered:
