@@ -227,11 +227,13 @@ def check_overrides(config: StationConfig, hub: str, overrides: Overrides) -> No
 
 def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float = 1.0, seed: int = 0,
                   mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
-                  overrides: Overrides | None = None, certs: str | None = None, real: Real = ()) -> dict[str, Driver]:
+                  overrides: Overrides | None = None, certs: str | None = None, real: Real = (),
+                  emulated_state: Path | None = None) -> dict[str, Driver]:
     """`mode` overrides every device's mode (e.g. `hubctl up --mode sim`), `real` names devices run in mode
     real whatever hubs.toml or `mode` says; `failure` overrides the
     failure probability of emulated resources; `overrides` are merged into the devices' parameters;
-    `certs`: the certificate directory given on the command line (a driver serving TLS reads it).
+    `certs`: the certificate directory given on the command line (a driver serving TLS reads it);
+    `emulated_state`: a directory where each emulated device keeps its values across restarts of its hub.
     Raises ConfigError (file, line, key) for a device without driver or with a bad parameter."""
     if hub not in config.hubs:
         raise KeyError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
@@ -251,6 +253,7 @@ def build_drivers(config: StationConfig, hub: str, model: Model, *, speed: float
                 seed=seed ^ zlib.crc32(resource.encode()),
                 failure_probability=(failure or {}).get(resource, float(params.get("failure_probability", 0.0))),
                 delay=parse_delay(params["delay"]) if "delay" in params else device.delay,
+                keep_in=None if emulated_state is None else emulated_state / f"{resource}.json",
             )
         else:
             driver = make_driver(resource, device.type, chosen, params)

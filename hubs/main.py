@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import logging
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from common.config.hubs_toml import load_station
@@ -67,6 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loopback-port", type=int, help="run on loopback, the controller listening on this port")
     parser.add_argument("--certs", metavar="DIR", help="the certificate directory ([security] mode = \"tls\"; "
                                                        "default: [security] certs)")
+    parser.add_argument("--emulated-state", metavar="DIR", type=Path,
+                        help="where emulated devices keep their values, so that a restarted hub finds its devices "
+                             "as it left them (hubctl up gives its run directory's)")
     parser.add_argument("--selftest", action="store_true",
                         help="run the hub's self-test instead of serving; exit 1 on a failure")
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -75,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = None, speed: float = 1.0,
                   seed: int = 0, mode: DeviceMode | None = None, failure: dict[str, float] | None = None,
                   overrides: Mapping[str, Mapping[str, Any]] | None = None, certs: str | None = None,
-                  real: Sequence[str] = ()) -> int:
+                  real: Sequence[str] = (), emulated_state: Path | None = None) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
     from common.config.security import identity_of
@@ -87,7 +91,7 @@ async def run_hub(config_path: str, hub: str, *, loopback_port: int | None = Non
     if settings is None:
         raise argparse.ArgumentTypeError(f"{config.path}: no hub named {hub!r} (hubs: {', '.join(config.hubs)})")
     drivers = build_drivers(config, hub, model, speed=speed, seed=seed, mode=mode, failure=failure,
-                            overrides=overrides, certs=certs, real=real)
+                            overrides=overrides, certs=certs, real=real, emulated_state=emulated_state)
     zconfig = station_zenoh_config(config, model, identity_of(config, hub), network(config, hub, loopback_port),
                                    certs=certs)
     stop = stop_on_signals()
@@ -127,7 +131,7 @@ def serve(args: argparse.Namespace) -> int:
     setup_logging(args.name, args.verbose)
     return asyncio.run(run_hub(args.config, args.name, loopback_port=args.loopback_port, speed=args.speed,
                                seed=args.seed, mode=args.mode, failure=failure, overrides=overrides,
-                               certs=args.certs, real=args.real))
+                               certs=args.certs, real=args.real, emulated_state=args.emulated_state))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

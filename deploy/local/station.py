@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import fcntl
 import os
+import shutil
 import signal
 import sys
 import time
@@ -45,6 +46,7 @@ from .recordings import recording_since
 from .supervisor import Child, Say, Supervisor
 
 RUN_DIR = Path("var/up")
+EMULATED_STATE = "devices"  # in the run directory: the emulated devices' values, kept across restarts of their hubs
 OPERATION_LABELS = {OperationState.EXECUTING: "start", OperationState.FINISHED: "done ", OperationState.ERROR: "ERROR",
                     OperationState.INITIAL: "reset"}
 
@@ -117,7 +119,8 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
                       first_start_args=[] if options.resume else ["--fresh"])]
     for hub in config.hubs.values():
         argv = [sys.executable, "-m", "hubs", hub.name, "--config", options.config, "--loopback-port", str(port),
-                "--speed", str(options.speed), "--seed", str(options.seed), *secured]
+                "--speed", str(options.speed), "--seed", str(options.seed),
+                "--emulated-state", str(run_dir / EMULATED_STATE), *secured]
         if options.mode:
             argv += ["--mode", options.mode]
         for resource in sorted(options.real & set(hub.devices)):
@@ -258,6 +261,10 @@ async def _run_station(options: Options, say: Say, config: StationConfig, model:
                        certs: Path | None) -> int:
     port = free_port()
     children = child_commands(config, options, port, certs)
+    emulated = options.run_dir / EMULATED_STATE
+    if not options.resume:  # a run starts with its devices as the model says; a restarted hub finds them as left
+        shutil.rmtree(emulated, ignore_errors=True)
+    emulated.mkdir(parents=True, exist_ok=True)
     keys = config.keys
     scheme = "tls" if certs is not None else "tcp"
     devices = f"{options.mode or 'as in ' + options.config}" + "".join(f", {r} real" for r in sorted(options.real))

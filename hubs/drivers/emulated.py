@@ -14,15 +14,26 @@ changer, told to unlock at the dock while it still had the robot on its way ther
 the tool on the plate, a dead end for the station. The other hubs publish at their rate
 (50 Hz by default), so the wait is short; a silent one holds it at most `input_wait`,
 and one never heard of (its hub not running) not at all.
+
+The emulated device outlives its hub, as a real one does: given a file (`hubctl up` gives each a file in its
+run directory), the driver keeps the device's values there (what it measures and the commands it holds) and a
+restarted hub finds its device as the killed one left it. Without that, a robot whose hub was killed standing
+at a filter woke up at `home` and moved back onto the filter at the controller's next command: the work done
+twice that no real cell would do.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
+import os
 import time
 from collections.abc import Mapping
+from pathlib import Path
+
+import msgspec
 
 from common.model import Duration, Model, Value
 
@@ -37,6 +48,8 @@ SAFE_STATES: dict[str, dict[str, Value]] = {
 }
 
 
+log = logging.getLogger("statehub.hub.emulated")
+
 # The longest an effect that reads other resources waits for their news after a command.
 INPUT_WAIT_S = 1.0
 
@@ -44,7 +57,8 @@ INPUT_WAIT_S = 1.0
 class EmulatedDriver(Driver, Inputs, Observes):
     def __init__(self, model: Model, resource: str, *, speed: float = 1.0, seed: int = 0,
                  failure_probability: float = 0.0, delay: Duration | float | None = None,
-                 input_wait: float = INPUT_WAIT_S) -> None:
+                 input_wait: float = INPUT_WAIT_S, keep_in: Path | None = None) -> None:
+        """`keep_in`: the file the device's values are kept in across restarts of its hub (None: not kept)."""
         self.resource = resource
         self.model = model
         spec = model.resource_by_name[resource]
@@ -67,6 +81,49 @@ class EmulatedDriver(Driver, Inputs, Observes):
         self._task: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
         self._prefix = f"{resource}."
+        self._keep_in = keep_in
+        self._kept: dict[str, Value] = {}
+        if keep_in is not None:
+            self._restore(keep_in)
+
+    def _own(self) -> dict[str, Value]:
+        return {p: self.values[p] for p in (*self.measured, *self.commands)}
+
+    def _restore(self, path: Path) -> None:
+        """The values the device had when its last hub stopped, if it ran before in this run."""
+        try:
+            saved = msgspec.json.decode(path.read_bytes())
+        except FileNotFoundError:
+            return
+        except (OSError, msgspec.DecodeError) as exc:
+            log.warning("%s: the emulated device's kept values in %s are unreadable (%s): it starts afresh",
+                        self.resource, path, exc)
+            return
+        own = self._own()
+        if not isinstance(saved, dict):
+            log.warning("%s: %s holds no values: the emulated device starts afresh", self.resource, path)
+            return
+        bad = sorted(p for p, v in saved.items() if p not in own or v not in self.model.var(p).domain)
+        if bad:
+            log.warning("%s: %s names unknown variables or values (%s): the emulated device starts afresh",
+                        self.resource, path, ", ".join(bad))
+            return
+        self.values.update(saved)
+        self._kept = self._own()
+        log.info("%s: the emulated device is as its last hub left it (%s)", self.resource,
+                 ", ".join(f"{p}={v}" for p, v in sorted(saved.items())))
+
+    def _keep(self) -> None:
+        """Write the device's values if they changed: a file replaced whole, never half written."""
+        if self._keep_in is None:
+            return
+        own = self._own()
+        if own == self._kept:
+            return
+        partial = self._keep_in.with_name(self._keep_in.name + ".partial")
+        partial.write_bytes(msgspec.json.encode(own))
+        os.replace(partial, self._keep_in)
+        self._kept = own
 
     @property
     def connected(self) -> bool:
@@ -95,6 +152,7 @@ class EmulatedDriver(Driver, Inputs, Observes):
                 # What just fired may enable another effect: step again to schedule it, after
                 # letting the rest of the hub run.
                 self.values.update(changes)
+                self._keep()
                 await asyncio.sleep(0)
                 continue
             due = self.emulator.next_due(hold)
@@ -152,6 +210,7 @@ class EmulatedDriver(Driver, Inputs, Observes):
             if self.values.get(path) != value:
                 self.values[path] = value
                 self._commanded_at = time.time()
+        self._keep()
         self._wake.set()
 
     async def enter_safe_state(self) -> dict[str, Value]:
