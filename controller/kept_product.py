@@ -40,13 +40,15 @@ class KeptProduct:
 
     def goals(self, state: State, still_to_run: Iterable[str]) -> dict[str, Predicate]:
         """The finished operations' product goals a plan from `state` must leave holding; `still_to_run`:
-        the operations executing or requested, whose goals move their variables on."""
+        the operations executing or requested (those finished among them are left out), whose goals move their
+        variables on."""
         if not self._keepable:
             return {}
+        finished = OperationState.FINISHED.value
         moving: set[str] = set()
         for name in still_to_run:
-            moving |= self._goal_paths[name]
-        finished = OperationState.FINISHED.value
+            if state[self._state_index[name]] != finished:
+                moving |= self._goal_paths[name]
         return {name: goal for name, (goal, holds) in self._keepable.items()
                 if state[self._state_index[name]] == finished and holds(state)
                 and not (self._goal_paths[name] & moving)}

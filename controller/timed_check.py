@@ -302,8 +302,12 @@ class TimedCheck:
         victim: int | None = None
         if not effect and fault is TimingFault.LEFT_PLAN:
             # The effect that just fired out of the plan's order, and the first pending step that needed what
-            # it changed (the tracking of pipe 2 that needed the nutrunner's torque the reset took away).
-            for e in last_fired:
+            # it changed (the tracking of pipe 2 that needed the nutrunner's torque the reset took away). Of
+            # several that fired at once, one that wrote a value the plan did not expect is to blame first: the
+            # nutrunner back in its dock, not the camera that saw the operator step out at the same moment (a race
+            # learnt against the camera sent the planner round through pipe 1's instruction again and again).
+            differing = {i for i in progress.relevant if result.state[i] != progress.expected[i]}
+            for e in sorted(last_fired, key=lambda fired: not (fired.writes & differing)):
                 changed = e.writes
                 reader = next((j for j in progress.pending()
                                if progress.transitions[j] is not e and progress.transitions[j].reads & changed), None)

@@ -8,17 +8,21 @@ reference station with a slow operator in partial order.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from common.model import Duration
+from common.model import Duration, all_of
 from common.resources import durations_of
 from common.stations import load_model
 from controller.deorder import Execution
 from controller.planner import Plan
+from controller.planner.plans import PlanStats
 from controller.planner.policy import VIRTUAL_BUDGET
 from controller.stack import ControllerStack, build_controller_stack
 from controller.timed_check import TimedCheck, TimingFault, corner_timings
 from deploy.local.inprocess import run_in_process
+from deploy.local.statefile import load_state
 from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
 from tests.timing_stations.feeder import build_model as build_feeder_station
 
@@ -101,3 +105,45 @@ def test_reference_station_with_a_slow_operator_completes_in_partial_order() -> 
     summary = run_in_process(load_model(), seed=1, delays={"human": 30.0}, execution=Execution.PARTIAL_ORDER,
                              time_limit=900.0)
     assert summary.finished, (summary.reason, summary.log[-8:])
+
+
+PIPE2_STATE = Path(__file__).resolve().parent / "timing_stations" / "pipe2_after_pipe1_confirmed.toml"
+
+
+def test_of_two_effects_at_once_the_one_that_broke_the_plan_is_blamed() -> None:
+    """The recorded state above: the plan's refusal names the dock taking the nutrunner back (it wrote the value
+    the plan did not expect), not the camera that saw the operator step out at the same moment. Learnt against
+    the camera, the race sent the planner round through the instruction for pipe 1 again and again (a chaos run
+    livelocked so); against the dock, the next plan waits for the nutrunner."""
+    model = load_model("common.stations.engine_assembly:build_model")
+    stack = build_controller_stack(model)
+    compiled = stack.compiled
+    start = compiled.pack({**model.initial_state(), **load_state(PIPE2_STATE, model)})
+    goals = {name: model.operation_by_name[name].goal for name in ("TightenPipe2", "RobotHome")}
+    plan = stack.planner.plan(start, goals, budget=VIRTUAL_BUDGET)
+    assert isinstance(plan, Plan)
+    durations = {e.resource: e.duration for e in durations_of(model).entries}
+    refused = TimedCheck(compiled, durations).refusal(plan)
+    assert refused is not None and refused.effect == "dock.nutrunner_returns.executing.effect", refused
+    assert "dock.nutrunner_home_m" in refused.text
+
+
+def test_the_symbolic_member_keeps_to_the_races_learnt() -> None:
+    """A race learnt is kept by every member: the symbolic one builds its moves ahead of time, so it is built again
+    with the race in. Before, its shortest plan instructed pipe 2 while the dock was taking the nutrunner back, failed
+    the planner's own check, and the request had no plan ("internal error")."""
+    model = load_model("common.stations.engine_assembly:build_model")
+    stack = build_controller_stack(model)
+    compiled, planner = stack.compiled, stack.planner
+    start = compiled.pack({**model.initial_state(), **load_state(PIPE2_STATE, model)})
+    goal = all_of(*(model.operation_by_name[name].goal for name in ("TightenPipe2", "RobotHome")))
+    returns = compiled.by_name["dock.nutrunner_returns.executing.effect"]
+    assert planner.timed_races.forbid(compiled.by_name["human.tighten_pipe2.enabled"], returns)
+    symbolic = planner.symbolic(frozenset())
+    assert symbolic is not None
+    found = symbolic.search(start, goal)
+    assert found.moves is not None
+    plan = planner.checked_plan(start, found.moves, ("TightenPipe2", "RobotHome"), PlanStats("symbolic"),
+                                planner.goal_test(goal), frozenset())  # PlanInvalid for a plan that loses the race
+    instructed = next(j for j, step in enumerate(plan.steps) if step.transition == "human.tighten_pipe2.enabled")
+    assert not returns.guard(plan.states[instructed])

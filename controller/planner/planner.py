@@ -65,7 +65,7 @@ class Planner:
         self._races: dict[frozenset[str], RaceCheck] = {}
         self.timed_races = TimedRaces()  # what plans refused in time taught (controller/loop.py)
         self._relaxed: dict[frozenset[str], RelaxedModel] = {}
-        self._symbolic: dict[frozenset[str], SymbolicPlanner] = {}
+        self._symbolic: dict[tuple[frozenset[str], tuple[int, bool]], SymbolicPlanner] = {}
         self._abstractions: dict[tuple[frozenset[str], tuple[int, ...], frozenset[int]], Abstraction] = {}
         self._heuristics: OrderedDict[tuple[frozenset[str], tuple[Predicate, ...]], GoalHeuristic] = OrderedDict()
         self.memory = PlanMemory(compiled)
@@ -100,9 +100,11 @@ class Planner:
     def symbolic(self, disabled: frozenset[str], stop: StopTest | None = None) -> SymbolicPlanner | None:
         """The symbolic member for this set of disabled resources, built on first use (its BDD encoding
         takes a few hundred milliseconds; it is asked only when greedy and A* settled nothing)."""
-        found = self._symbolic.get(disabled)
+        key = (disabled, self.timed_races.version)  # built again once a race is learnt: it compiles them in
+        found = self._symbolic.get(key)
         if found is None:
-            found = self._symbolic[disabled] = SymbolicPlanner(self.compiled, self.forbidden, disabled, stop)
+            found = self._symbolic[key] = SymbolicPlanner(self.compiled, self.forbidden, disabled, stop,
+                                                          self.timed_races.known())
         return found
 
     def goal_test(self, goal: Predicate) -> Callable[[State], bool]:

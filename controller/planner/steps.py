@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import operator
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 from common.model import TransitionKind
@@ -155,6 +155,11 @@ class TimedRaces:
             yield
         finally:
             self.suspended = False
+
+    def known(self) -> Mapping[int, tuple[CompiledTransition, ...]]:
+        """Victim transition number -> the effects it may not come after while they are due (none while
+        suspended): what a member that compiles the moves ahead of time (the symbolic one) builds in."""
+        return {} if self.suspended else dict(self._due_before)
 
     def forbid(self, victim: CompiledTransition, due: CompiledTransition) -> bool:
         """Forbid `victim` while `due` is enabled; False if it already was."""

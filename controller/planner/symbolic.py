@@ -47,6 +47,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -138,9 +139,11 @@ class SymbolicPlanner:
 
     def __init__(
         self, compiled: CompiledModel, forbidden: Predicate | None, disabled: frozenset[str] = frozenset(),
-        stop: StopTest | None = None,
+        stop: StopTest | None = None, timed_races: Mapping[int, tuple[CompiledTransition, ...]] | None = None,
     ) -> None:
-        """`stop` ends the build (`stopping.Stopped`): the owner stores the member only once it is built."""
+        """`stop` ends the build (`stopping.Stopped`): the owner stores the member only once it is built.
+        `timed_races`: the races plans lost in time (steps.TimedRaces.known), each victim not taken while one
+        of its effects is due, as every other member does."""
         began = time.perf_counter()
         self.compiled = compiled
         self.forbidden = forbidden
@@ -173,6 +176,10 @@ class SymbolicPlanner:
             race = races.get(t.number) if t.kind is TransitionKind.DELIBERATE else None
             if race is not None:
                 fire &= ~race
+            for due in (timed_races or {}).get(t.number, ()):
+                if allowed(due):
+                    due_guard: Function = guards.setdefault(due.number, enc.guard(due))
+                    fire &= ~due_guard
             if fire == enc.false:
                 continue  # never the engine's move (a synthesized guard can be false)
             moves.extend(self._move(t, o, fire) for o in range(len(t.outcomes)))
