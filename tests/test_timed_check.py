@@ -147,3 +147,22 @@ def test_the_symbolic_member_keeps_to_the_races_learnt() -> None:
                                 planner.goal_test(goal), frozenset())  # PlanInvalid for a plan that loses the race
     instructed = next(j for j, step in enumerate(plan.steps) if step.transition == "human.tighten_pipe2.enabled")
     assert not returns.guard(plan.states[instructed])
+
+
+def test_the_satisficing_member_takes_the_effect_a_learnt_race_waits_for() -> None:
+    """With the race learnt (pipe 2 not instructed while the dock takes the nutrunner back), the plan has to take
+    the dock's effect first. No relaxed plan holds it (it matters to no goal), so the greedy search never preferred
+    it and ran out of its 20,000 states; the effects a preferred move waits for are preferred now."""
+    model = load_model("common.stations.engine_assembly:build_model")
+    stack = build_controller_stack(model)
+    compiled, planner = stack.compiled, stack.planner
+    start = compiled.pack({**model.initial_state(), **load_state(PIPE2_STATE, model)})
+    for victim, due in (("human.tighten_pipe2.enabled", "cam.sees_robot.executing.effect"),
+                        ("human.tighten_pipe2.enabled", "nr.tighten.resetting.effect"),
+                        ("human.tighten_pipe2.enabled", "dock.nutrunner_returns.executing.effect")):
+        assert planner.timed_races.forbid(compiled.by_name[victim], compiled.by_name[due])
+    goals = {name: model.operation_by_name[name].goal for name in ("TightenPipe2", "RobotHome")}
+    plan = planner.plan(start, goals, budget=VIRTUAL_BUDGET)
+    assert isinstance(plan, Plan) and plan.stats.method == "greedy", plan.stats
+    steps = [step.transition for step in plan.steps]
+    assert steps.index("dock.nutrunner_returns.executing.effect") < steps.index("human.tighten_pipe2.enabled")

@@ -81,6 +81,7 @@ def greedy(
             best_h = estimate.h
             priority = BOOST
         preferred = estimate.preferred
+        preferred |= system.unblocking(state, preferred)
         for succ in system.successors(state, goal, forbidden):
             generated += 1
             if succ.goal:

@@ -169,6 +169,12 @@ class TimedRaces:
         self._due_before[victim.number] = (*known, due)
         return True
 
+    def blocking(self, state: State, t: CompiledTransition) -> tuple[CompiledTransition, ...]:
+        """The effects due in `state` that `t` may not come after."""
+        if self.suspended:
+            return ()
+        return tuple(e for e in self._due_before.get(t.number, ()) if e.guard(state))
+
     def outrun(self, state: State, t: CompiledTransition) -> bool:
         effects = self._due_before.get(t.number)
         return effects is not None and not self.suspended and any(e.guard(state) for e in effects)
@@ -293,6 +299,19 @@ class StepSystem:
                 if state in seen or len(moves) > MAX_AUTOMATIC_STEPS:
                     return None  # an automatic cycle: the engine would never get past it
                 seen.add(state)
+
+    def unblocking(self, state: State, moves: frozenset[Move]) -> frozenset[Move]:
+        """The moves of the effects due in `state` that a learnt race makes one of `moves` wait for. A relaxed
+        plan never holds them (the nutrunner going back to its dock matters to no goal), so a search that follows
+        the relaxed plan's moves has to be told: the instruction for pipe 2 waits for the dock, the dock is next."""
+        races = self.race.timed_races
+        if not races:
+            return frozenset()
+        found: set[Move] = set()
+        for number, _ in moves:
+            for e in races.blocking(state, self.by_number[number]):
+                found.update((e.number, o) for o in range(len(e.outcomes)))
+        return frozenset(found)
 
     def successors(self, state: State, goal: StateTest, forbidden: StateTest | None) -> list[Successor]:
         """Macro-steps from a stable state (no automatic transition enabled)."""
