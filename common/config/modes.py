@@ -53,9 +53,9 @@ class Execution(enum.StrEnum):
         return cls.PARTIAL_ORDER if value == "partial-order" else None
 
 
-# hubs.toml's, and every engine's without one. Not the partial order yet: a fresh clone's `./dev up` (seed 0, the
-# machine loaded) livelocked in it at TightenPipe2, re-asking the operator for pipe 1 (see README, Execution).
-DEFAULT_EXECUTION = Execution.TRACE
+# hubs.toml's, and every engine's without one: the operator works while the robot does. (It was the trace while
+# plans could go round through pipe 1's instruction for ever: races blamed on the wrong effect, see README, Execution.)
+DEFAULT_EXECUTION = Execution.PARTIAL_ORDER
 
 
 def words(mode: type[enum.StrEnum]) -> tuple[str, ...]:
