@@ -27,6 +27,7 @@ step: a plan that a timing of its effects breaks in the other two orders (contro
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -35,7 +36,7 @@ from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.predicates import Ref
 
 from .planner import Plan
-from .planner.plans import Execution
+from .planner.plans import Execution, PlanStep
 
 __all__ = ["Execution", "Ordering", "copied_reads", "order"]
 
@@ -76,15 +77,31 @@ class _GuardTest:
         return self.memo[key]
 
 
+ORDERINGS_KEPT = 256  # a station's plans in use at once, and those its planner remembers for the next orders
+
+
 def order(compiled: CompiledModel, plan: Plan, execution: Execution = Execution.PARTIAL_ORDER) -> Ordering:
-    transitions = [compiled.by_name[s.transition] for s in plan.steps]
+    """What each step of `plan` waits for in `execution`. Remembered: the engine orders every plan it follows,
+    every rest of one it keeps and every plan the timed check simulates, and the planner hands back the same
+    plans order after order; ordering a 233-step plan afresh each time was half of an in-process run's CPU."""
+    return _remembered(compiled, plan.steps, plan.states, execution)
+
+
+@functools.lru_cache(maxsize=ORDERINGS_KEPT)
+def _remembered(compiled: CompiledModel, steps: tuple[PlanStep, ...], states: tuple[State, ...],
+                execution: Execution) -> Ordering:
+    return _order(compiled, steps, states, execution)
+
+
+def _order(compiled: CompiledModel, steps: tuple[PlanStep, ...], states: tuple[State, ...],
+           execution: Execution) -> Ordering:
+    transitions = [compiled.by_name[s.transition] for s in steps]
     trace, prior_writers, observers_before = _trace_order(compiled, transitions)
     if execution is Execution.TRACE:
         return Ordering(trace, trace, trace, prior_writers, observers_before)
     if execution is Execution.SEQUENCE:
         sequence = tuple(t | {j - 1} if j else t for j, t in enumerate(trace))
         return Ordering(sequence, trace, trace, prior_writers, observers_before)
-    states = plan.states
     writers: dict[int, list[int]] = {}  # variable -> the steps writing it, in plan order
     for j, t in enumerate(transitions):
         for i in t.writes:
