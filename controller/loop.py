@@ -49,6 +49,7 @@ from .planner import NoPlan, Plan
 from .planner.plans import Execution
 from .planner.policy import solve_goals
 from .production.flow import OrderFlow
+from .production.settle import ProductSettle
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
@@ -93,6 +94,7 @@ class ControlLoop:
         self._goals = {name: op.goal for name, op in core.model.operation_by_name.items()}
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
         self.cycle = CycleRecord([r.name for r in core.model.resources])
+        self.settle = ProductSettle(core.compiled, self.seconds, core.clock)
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
         self._counted_steps: set[int] = set()
         self._step_seconds: list[float] = []
@@ -161,7 +163,7 @@ class ControlLoop:
         assert flow is not None
         news: list[OrderStarted | OrderFinished] = []
         current = flow.current
-        if current is not None and self._all_finished(flow.requested):
+        if current is not None and self._all_finished(flow.requested) and not self.settle.in_hand(core.state):
             values = core.compiled.unpack(core.state)
             if flow.book.complete(current, values):
                 done = flow.book.finish(current, values)
