@@ -78,8 +78,7 @@ class PlanProgress:
     def __init__(self, compiled: CompiledModel, plan: Plan, sent: dict[str, str] | None = None,
                  execution: Execution = DEFAULT_EXECUTION) -> None:
         """`sent`: what last set each resource going (kept from the plan before, to name a lost effect's cause);
-        `execution`: how steps wait for each other (hubs.toml's, by default the partial order:
-        controller/deorder.py)."""
+        `execution`: how steps wait for each other (hubs.toml's, by default the trace; controller/deorder.py)."""
         self.plan = plan
         self.execution = plan.execution or execution  # a plan the timed check ran in a stricter order keeps it
         self.transitions: list[CompiledTransition] = [compiled.by_name[s.transition] for s in plan.steps]

@@ -38,8 +38,8 @@ def recorded_run(directory: Path) -> Path:
     return info.path
 
 
-def test_the_default_is_the_partial_order() -> None:
-    assert load_config(FAULT_CONFIG).controller.execution is DEFAULT_EXECUTION is Execution.PARTIAL_ORDER
+def test_the_default_is_the_trace() -> None:
+    assert load_config(FAULT_CONFIG).controller.execution is DEFAULT_EXECUTION is Execution.TRACE
 
 
 @pytest.mark.parametrize("execution", list(Execution))
@@ -91,20 +91,20 @@ def test_a_replay_runs_the_recorded_order_not_the_default(tmp_path: Path, monkey
 
 
 @pytest.mark.timeout(180)
-def test_the_live_controller_runs_its_plans_in_the_order_hubs_toml_chooses(tmp_path: Path,
-                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_live_controller_runs_its_plans_in_the_partial_order_hubs_toml_chooses(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """Over processes: the first plan goes out in sequence, the planner process's verdict loosens it to the
-    controller's own order, the trace hubs.toml chooses here (the default is the partial order)."""
+    controller's own order, the partial order of hubs.toml (the default is the trace)."""
     monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path / "runs"))  # the controller process inherits it
-    with Station(tmp_path, replace=[(CONTROLLER_KEY, f'{CONTROLLER_KEY}execution = "trace"\n')]) as station:
-        assert station.config.controller.execution is Execution.TRACE
+    with Station(tmp_path, replace=[(CONTROLLER_KEY, f'{CONTROLLER_KEY}execution = "partial_order"\n')]) as station:
+        assert station.config.controller.execution is Execution.PARTIAL_ORDER
         station.start()
         station.wait_for(station.watch.finished, RUN_TIMEOUT_S, "the station finishes")
         station.close()  # SIGTERM: the controller closes its recording
     with open_run(recorded_run(tmp_path / "runs")) as run:
-        assert run.meta.execution is Execution.TRACE
+        assert run.meta.execution is Execution.PARTIAL_ORDER
         plans = [r.data_as(PlanRecord) for r in run.events(kinds=[RecordKind.PLAN])]
         replayed = Replayer(run).replay()
-    assert any(p.answer == PlanAnswer.CHECKED and p.taken and p.execution == Execution.TRACE
+    assert any(p.answer == PlanAnswer.CHECKED and p.taken and p.execution == Execution.PARTIAL_ORDER
                for p in plans), plans
     assert replayed.same, str(replayed.divergence)
