@@ -29,8 +29,7 @@ from common.model.compiled import CompiledModel, State
 class KeptProduct:
     def __init__(self, compiled: CompiledModel) -> None:
         model: Model = compiled.model
-        operation_states = {op.state_path for op in model.operations}
-        product = frozenset(model.product_variables) - operation_states
+        product = model.product_state
         self._goal_paths = {op.name: frozenset(op.goal.paths()) for op in model.operations}
         # Operations whose goal is about the product alone, with the goal compiled once.
         self._keepable: dict[str, tuple[Predicate, Callable[[Sequence[Value]], bool]]] = {

@@ -114,6 +114,11 @@ class Model:
         return product_paths(self.product, estimated, self.operations)
 
     @cached_property
+    def product_state(self) -> frozenset[str]:
+        """Of `product_variables`, the product's own estimated variables: without the operations' states."""
+        return frozenset(self.product_variables) - {op.state_path for op in self.operations}
+
+    @cached_property
     def variant_by_name(self) -> dict[str, Variant]:
         """The declared variants, or the implicit one of a model that declares none."""
         return {v.name: v for v in (self.variants or (implicit_variant(),))}

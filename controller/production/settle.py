@@ -23,9 +23,7 @@ SETTLE_MIN_S = 2.0
 
 class ProductSettle:
     def __init__(self, compiled: CompiledModel, seconds: Mapping[str, float], clock: Callable[[], float]) -> None:
-        model = compiled.model
-        product = set(model.product_variables) - {op.state_path for op in model.operations}
-        indices = frozenset(compiled.index[p] for p in product)
+        indices = frozenset(compiled.index[p] for p in compiled.model.product_state)
         self._effects: tuple[CompiledTransition, ...] = tuple(t for t in compiled.effects if t.reads & indices)
         self._seconds = seconds
         self._clock = clock
