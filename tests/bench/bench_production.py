@@ -124,8 +124,8 @@ def long_run(seed: int, fail_rate: float, orders: int) -> tuple[int, float, str]
     return seed, time.perf_counter() - began, "ok"
 
 
-def long_set(seeds: list[int], orders: int, jobs: int) -> None:
-    for fail_rate in (0.0, FAIL_RATE):
+def long_set(seeds: list[int], orders: int, jobs: int, fail_rates: list[float]) -> None:
+    for fail_rate in fail_rates:
         began = time.perf_counter()
         with concurrent.futures.ProcessPoolExecutor(jobs) as pool:
             results = list(pool.map(long_run, seeds, [fail_rate] * len(seeds), [orders] * len(seeds)))
@@ -145,15 +145,21 @@ def main() -> None:
     parser.add_argument("--long", action="store_true", help="also 200 orders for each seed, with and without failures")
     parser.add_argument("--seeds", default="1-20")
     parser.add_argument("--orders", type=int, default=200)
+    parser.add_argument("--fail-rates", default=f"0,{FAIL_RATE}",
+                        help="the --long halves to run, comma-separated (default %(default)s)")
     parser.add_argument("--jobs", type=int, default=max(1, min(2, os.cpu_count() or 1)))
     args = parser.parse_args()
+    try:
+        fail_rates = [float(rate) for rate in args.fail_rates.split(",")]
+    except ValueError:
+        parser.error(f"--fail-rates {args.fail_rates!r}: expected numbers separated by commas, e.g. 0,{FAIL_RATE}")
     if args.processes:
         over_processes()
     in_process(args.orders)
     if args.rss:
         rss()
     if args.long:
-        long_set(seeds_of(args.seeds), args.orders, args.jobs)
+        long_set(seeds_of(args.seeds), args.orders, args.jobs, fail_rates)
 
 
 if __name__ == "__main__":
