@@ -41,6 +41,7 @@ from common.wire.ctl import (
 from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
+from .causal_chain import CausalChain
 from .control import ControlCore, PlanRequest
 from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predicted_finish, step_seconds
 from .engine import PlanProgress, TickResult
@@ -98,6 +99,7 @@ class ControlLoop:
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
         self._counted_steps: set[int] = set()
         self._step_seconds: list[float] = []
+        self.chain = CausalChain(core.compiled, self.seconds)
         self.recorder = recorder
         self.clock = clock
         model, index = core.model, core.compiled.index
@@ -119,10 +121,13 @@ class ControlLoop:
     def ingest(self, measured: Mapping[str, Value], hub_states: Sequence[HubState] = ()) -> dict[str, Value]:
         """Measured values (and each hub state's status and mirrored seq, for the recording); what changed."""
         self.clock()
+        before = self.core.state
         changed = self.core.ingest(measured) if measured else {}
         self.recorder.ingested(changed, hub_states)
         if changed:
             self.cycle.measured(self.core.clock(), {path.split(".", 1)[0] for path in changed})
+            self.chain.measured(before, self.core.state, changed)
+            self.cycle.chained(self.chain.longest)
         return changed
 
     def liveliness(self, hub: str, alive: bool) -> None:
@@ -151,6 +156,9 @@ class ControlLoop:
         self.recorder.ticked(unhealthy)
         for dispatched in result.dispatched:
             self.cycle.dispatched(core.clock(), dispatched.resources, dispatched.waited)
+        if result.fired:
+            self.chain.fired(result.fired)
+            self.cycle.chained(self.chain.longest)
         self._count_effects()
         orders = self._advance_orders() if self.orders is not None else []
         return Ticked(result, self._recorded(self.outbox.changed(core.state, held)), orders)

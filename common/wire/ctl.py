@@ -407,13 +407,13 @@ class ResourceIdleInfo(msgspec.Struct, frozen=True):
 class CycleInfo(msgspec.Struct, frozen=True):
     """The goal set's timing, in a status, in seconds since the controller started (controller/cycle.py):
     the predicted finish of the plan under way, the lower bound (no schedule of the work ends sooner: the
-    busiest resource's necessary work, the first plan's longest causal chain), and each resource's idle time.
+    busiest resource's necessary work, the run's longest causal chain), and each resource's idle time.
     `cycle_s`: the time so far, or when every operation finished."""
 
     cycle_s: float
     predicted_s: float
     bound_s: float
-    chain_s: float = 0.0  # the first plan's longest causal chain
+    chain_s: float = 0.0  # the run's longest causal chain (controller/cycle.py's RunChain)
     busiest: str = ""  # the resource with the most work done
     busiest_work_s: float = 0.0
     idle: list[ResourceIdleInfo] = msgspec.field(default_factory=list)
