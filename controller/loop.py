@@ -85,7 +85,8 @@ class ControlLoop:
                  durations: Mapping[str, Duration] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
         `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
-        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval, what
+        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval (and the
+        effects' whose ability takes its own: `DurationTable.keyed()`), what
         plans are checked in time against before use (controller/timed_check.py; None: not checked; the check
         runs in the caller's thread, seconds for a plan of hundreds of steps: in process and in replay, not yet
         in the live controller's event loop)."""

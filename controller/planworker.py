@@ -62,7 +62,8 @@ class Limits:
 @dataclass(frozen=True)
 class Timing:
     """What the worker checks plans against: each resource's effect durations (common/resources' `durations_of`:
-    the model's, hubs.toml's `delay` over them) and the controller engine's own order."""
+    the model's, hubs.toml's `delay` over them; `DurationTable.keyed()`, with the effects whose ability takes its
+    own time) and the controller engine's own order."""
 
     durations: Mapping[str, Duration]
     execution: Execution = DEFAULT_EXECUTION

@@ -120,7 +120,7 @@ class ControllerService:
         """The station's effect durations, from the source the emulator uses (the model's, under hubs.toml's
         `delay`), and the engine's own order: what plans are checked in time against."""
         table = durations_of(self.model, self.config.delays)
-        return Timing({e.resource: e.duration for e in table.entries}, self.core.engine.execution)
+        return Timing(table.keyed(), self.core.engine.execution)
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:

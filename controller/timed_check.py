@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from common.config.modes import DEFAULT_EXECUTION
 from common.model import Duration, Predicate, TransitionKind
 from common.model.compiled import CompiledModel, CompiledTransition, State
-from common.model.durations import effect_owner
+from common.model.durations import duration_in, effect_owner
 from common.wire.ctl import ReplanReason
 
 from .deorder import Execution
@@ -148,14 +148,15 @@ def corner_timings(compiled: CompiledModel, durations: Mapping[str, Duration]) -
     """The timings a plan is checked at: all earliest, all latest, and each resource with an interval at one
     end while the others are at the other. Fixed durations give one timing."""
     owner = {t.name: effect_owner(t.source) for t in compiled.effects if t.writes}
+    taking = {name: duration_in(durations, name, r) for name, r in owner.items()}
 
     def seconds(pick: Callable[[str], bool]) -> dict[str, float]:
         """`pick(resource)`: True for its earliest."""
-        return {name: durations[r].min_s if pick(r) else durations[r].max_s for name, r in owner.items()}
+        return {name: taking[name].min_s if pick(r) else taking[name].max_s for name, r in owner.items()}
 
     timings = [Timing("every effect at its earliest", seconds(lambda _r: True)),
                Timing("every effect at its latest", seconds(lambda _r: False))]
-    varying = sorted({r for r in owner.values() if not durations[r].is_fixed})
+    varying = sorted({r for name, r in owner.items() if not taking[name].is_fixed})
     for r in varying:
         timings.append(Timing(f"{r}'s effects at their earliest, the others' at their latest",
                               seconds(functools.partial(operator.eq, r))))
@@ -201,7 +202,8 @@ class TimedCheck:
 
     def __init__(self, compiled: CompiledModel, durations: Mapping[str, Duration],
                  execution: Execution = DEFAULT_EXECUTION) -> None:
-        """`durations`: each resource's interval (common/model/durations.py's table, by resource)."""
+        """`durations`: each resource's interval, and the effects' with their ability's own
+        (common/model/durations.py's `DurationTable.keyed()`)."""
         self.compiled = compiled
         self.execution = execution
         self.timings = corner_timings(compiled, durations)

@@ -48,8 +48,10 @@ def _duration_lines(durations: DurationTable, resources: Iterable[str] | None = 
     entries = [e for e in durations.entries if wanted is None or e.resource in wanted]
     width = max((len(e.resource) for e in entries), default=0)
     type_width = max((len(e.device_type) for e in entries), default=0)
+    own = [(name, d) for name, d in durations.own_effects.items()
+           if wanted is None or name.split(".", 1)[0] in wanted]
     return [f"  {e.resource:<{width}}  {e.device_type or '-':<{type_width}}  {e.duration!s:<10}  {e.source.value}"
-            for e in entries]
+            for e in entries] + [f"    {name}  {d!s:<10}  its ability's own, whatever the device's" for name, d in own]
 
 
 def cmd_check(args: argparse.Namespace) -> int:

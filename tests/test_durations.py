@@ -177,3 +177,35 @@ def test_hubctl_plan_takes_the_delays_of_hubs_toml(capsys: pytest.CaptureFixture
     out = capsys.readouterr().out
     cnc = next(line for line in out.splitlines() if line.strip().startswith("cnc "))
     assert cnc.split()[2:] == ["0.5", "s", "hubs.toml", "delay"]
+
+
+def test_the_operators_button_release_takes_its_own_time_whatever_a_task_takes() -> None:
+    from common.model.compiled import CompiledModel
+    from common.model.durations import duration_in
+    from controller.timed_check import corner_timings
+
+    model = load_model()
+    table = durations_of(model, {"human": Duration.fixed(20.0)})
+    by_name = {t.name: t for t in model.ability_transitions}
+    task, release = by_name["human.mount_filter1.executing.effect"], by_name["human.release_button.resetting.effect"]
+    assert table.of_transition(task) == Duration.fixed(20.0)
+    assert table.of_transition(release) == Duration.fixed(0.5)
+    keyed = table.keyed()
+    assert duration_in(keyed, task.name, "human") == Duration.fixed(20.0)
+    assert duration_in(keyed, release.name, "human") == Duration.fixed(0.5)
+    # The emulator and the timed check read the same.
+    emulator = EffectEmulator(model, ["human"], delays={"human": 20.0})
+    assert emulator.durations.of_transition(release) == Duration.fixed(0.5)
+    timings = corner_timings(CompiledModel(model), keyed)
+    assert {timing.seconds[release.name] for timing in timings} == {0.5}
+    assert {timing.seconds[task.name] for timing in timings} == {20.0}
+
+
+def test_a_duration_declared_for_an_ability_the_resource_lacks_is_refused_with_its_name() -> None:
+    from common.resources import operator
+
+    human = operator("human", tasks=("wave",))
+    wrong = type(human)(human.name, human.variables, human.abilities, human.device_type,
+                        ability_durations={"wink": Duration.fixed(1.0)})
+    with pytest.raises(KeyError, match=r"'human'.*wink"):
+        durations_of(Model("m", (wrong,)))

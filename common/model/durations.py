@@ -11,6 +11,11 @@ writes, so a duration is kept per resource, chosen in this order:
    name in `common.resources.TYPE_DURATIONS`);
 4. `FALLBACK`, which `hubctl check` names: a type that declares nothing runs on a guess.
 
+A type may also say that some of its abilities take their own time whatever the device's duration
+(`Resource.ability_durations`: the operator's task takes `delay`, releasing the watch's button does not);
+those effects take that, over all four. `DurationTable.keyed()` gives both as one mapping, by resource and
+by effect transition name, for the readers that take a mapping (the timed check), and `duration_in` reads it.
+
 `common.resources.durations_of(model, configured)` builds a station's table with the standard types'
 declarations; the emulator, `hubctl plan` and `hubctl check` read that table, and the planner, the
 scheduler and the cycle bound are to read the same one. Deliberate and automatic transitions are the
@@ -107,8 +112,10 @@ def declared_duration(resource: Resource) -> Duration | None:
 class DurationTable:
     """The duration of every resource's effects in one station."""
 
-    def __init__(self, entries: Iterable[ResourceDuration]) -> None:
+    def __init__(self, entries: Iterable[ResourceDuration], effects: Mapping[str, Duration] | None = None) -> None:
+        """`effects`: effect transition name -> its ability's own duration (`Resource.ability_durations`)."""
         self._entries: dict[str, ResourceDuration] = {e.resource: e for e in entries}
+        self._effects: dict[str, Duration] = dict(effects or {})
 
     @classmethod
     def build(cls, model: Model, *, type_defaults: Mapping[str, Duration],
@@ -130,7 +137,7 @@ class DurationTable:
             else:
                 duration, source = FALLBACK, DurationSource.FALLBACK
             entries.append(ResourceDuration(resource.name, resource.device_type, duration, source))
-        return cls(entries)
+        return cls(entries, _ability_effects(model))
 
     @property
     def entries(self) -> tuple[ResourceDuration, ...]:
@@ -145,11 +152,47 @@ class DurationTable:
     def of_resource(self, resource: str) -> Duration:
         return self.entry(resource).duration
 
+    @property
+    def own_effects(self) -> dict[str, Duration]:
+        """The effects whose ability declares its own duration, by transition name."""
+        return dict(self._effects)
+
     def of_transition(self, transition: Transition) -> Duration:
-        """An effect takes its resource's duration; the controller's own transitions take no time."""
+        """An effect takes its ability's own duration, else its resource's; the controller's own transitions
+        take no time."""
         if transition.kind is not TransitionKind.EFFECT:
             return INSTANT
-        return self.of_resource(effect_owner(transition))
+        own = self._effects.get(transition.name)
+        return own if own is not None else self.of_resource(effect_owner(transition))
+
+    def keyed(self) -> dict[str, Duration]:
+        """Each resource's duration by its name and each effect with its ability's own by the effect's name
+        (read with `duration_in`)."""
+        return {**{e.resource: e.duration for e in self._entries.values()}, **self._effects}
+
+
+def duration_in(durations: Mapping[str, Duration], effect: str, owner: str) -> Duration:
+    """An effect's duration in a `DurationTable.keyed()` mapping: its own, else its resource's."""
+    own = durations.get(effect)
+    return own if own is not None else durations[owner]
+
+
+def _ability_effects(model: Model) -> dict[str, Duration]:
+    effects: dict[str, Duration] = {}
+    for resource in model.resources:
+        declared = dict(resource.ability_durations)
+        for ability in resource.abilities:
+            short = ability.name.split(".", 1)[1] if "." in ability.name else ability.name
+            own = declared.pop(short, None)
+            if own is None:
+                continue
+            for t in ability.transitions:
+                if t.kind is TransitionKind.EFFECT:
+                    effects[t.name] = own
+        if declared:
+            raise KeyError(f"resource {resource.name!r} declares durations of abilities it does not have: "
+                           f"{', '.join(sorted(declared))}")
+    return effects
 
 
 def effect_owner(transition: Transition) -> str:

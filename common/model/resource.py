@@ -23,6 +23,9 @@ class Resource:
     # standard type's, or hubs.toml's `delay` (common/model/durations.py). Not in repr: recordings
     # identify a model by its repr's hash, which durations (like hubs.toml's delay) never entered.
     duration: Duration | None = field(default=None, compare=False, repr=False)
+    # Abilities whose effects take their own time whatever the device's duration, by the ability's short
+    # name (the operator's button release is quick however long a task takes): declared by the type.
+    ability_durations: dict[str, Duration] = field(default_factory=dict, hash=False, compare=False, repr=False)
 
     def of_kind(self, kind: Kind) -> tuple[Variable, ...]:
         return tuple(v for v in self.variables if v.kind is kind)
@@ -57,4 +60,4 @@ class Resource:
 
     def with_abilities(self, extra: Iterable[Ability]) -> Resource:
         return Resource(self.name, self.variables, (*self.abilities, *extra), self.device_type,
-                        self.unsafe_for_random_commands, self.parameters, self.duration)
+                        self.unsafe_for_random_commands, self.parameters, self.duration, self.ability_durations)

@@ -36,6 +36,10 @@ from common.model.transitions import ActionsLike
 # How long one effect of the type takes, unless a device's `delay` in hubs.toml says otherwise.
 # The operator doing a task, or releasing the button: slower than the robot.
 DURATION = Duration.fixed(0.5)
+# Releasing the button after the instruction is withdrawn: a thumb lifted, whatever a task takes. A device's
+# `delay` in hubs.toml sets how long the operator's tasks take, not this.
+RELEASE_DURATION = Duration.fixed(0.5)
+RELEASE = "release_button"
 
 NO_TASK = "none"
 
@@ -69,10 +73,10 @@ def operator(name: str = "human", tasks: Sequence[str] = (), confirm_when: Mappi
                            automatic=[f"{instr_c.path} := {NO_TASK}", *_as_list(records.get(task, ()))]),
             resetting=button_still_held,
         ))
-    abilities.append(ability(f"{name}.release_button",
+    abilities.append(ability(f"{name}.{RELEASE}",
                              resetting=Phase(button_still_held, effects=[f"{done_m.path} := false"])))
     return Resource(name, (instr_c, done_m), tuple(abilities), device_type="operator",
-                    parameters={"tasks": tasks})
+                    parameters={"tasks": tasks}, ability_durations={RELEASE: RELEASE_DURATION})
 
 
 def _as_list(actions: ActionsLike) -> list[Assign | str]:

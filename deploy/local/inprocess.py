@@ -94,7 +94,7 @@ def run_in_process(
     core = stack.control_core(clock, budget=budget, execution=execution)
     table = durations_of(model, {r: as_duration(d) for r, d in (delays or {}).items()})
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
-                       effect_seconds(model, delays), {e.resource: e.duration for e in table.entries})
+                       effect_seconds(model, delays), table.keyed())
     flow = None
     if production is None:
         loop.request([op.name for op in model.operations])

@@ -166,7 +166,7 @@ class Replayer:
         # The live controller commands the resources of its hubs.toml: those the recording saw commanded are
         # a subset of the model's, and a resource nobody commands has no command to compare.
         # A run in process checked its plans in time (controller/timed_check.py) against the model's durations.
-        durations = ({e.resource: e.duration for e in durations_of(self.model).entries}
+        durations = (durations_of(self.model).keyed()
                      if meta.mode == RunMode.IN_PROCESS else None)
         self.loop = ControlLoop(self.core, RunRecorder(self.core, self.clock, self.sink),
                                 (r.name for r in self.model.resources), self.clock, durations=durations)
