@@ -178,7 +178,7 @@ class PlanProgress:
         """An effect step that was due and lost its condition before it happened, and what took it away."""
         for j, when_due in sorted(self.due.items()):
             t = self.transitions[j]
-            if j in self.done or t.guard(state):
+            if j in self.done or t.guard(state) or self._came_otherwise(t, when_due, state):
                 continue
             changed = [i for i in sorted(t.reads) if when_due[i] != state[i]]
             if not changed:
@@ -189,6 +189,17 @@ class PlanProgress:
             because = f"{path} left {format_value(when_due[i])} (now {format_value(state[i])})"
             return LostEffect(t.name, self.never_text(compiled, j), because + (f" after {after}" if after else ""))
         return None
+
+    @staticmethod
+    def _came_otherwise(t: CompiledTransition, when_due: State, state: State) -> bool:
+        """The effect happened, with another of its outcomes than the plan's (a tightening that failed): not
+        lost. Every value that outcome writes is there now, and at least one of them is new."""
+        for outcome in t.outcomes:
+            written = outcome(when_due)
+            changed = [i for i in t.writes if written[i] != when_due[i]]
+            if changed and all(state[i] == written[i] for i in changed):
+                return True
+        return False
 
     def note_sent(self, compiled: CompiledModel, t: CompiledTransition, step: int | None) -> None:
         """A command or automatic transition fired (plan step `step`, if it is one): it set its resources going."""

@@ -6,7 +6,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from common.model import OperationState, Resource, measured
+import pytest
+
+from common.model import OperationState, Resource, Transition, measured
 from common.model.compiled import CompiledModel
 from common.wire.ctl import Livelock, ReplanCause, ReplanReason
 from controller.control import ControlCore
@@ -104,3 +106,29 @@ def test_replans_because_health_changes_are_no_circle_however_many_from_one_stat
     request = core.plan_request()
     assert request is not None and not request.goals
     assert core.op_state("LampOn") is OperationState.ERROR
+
+
+def test_a_tightening_that_fails_again_and_again_from_one_state_is_no_livelock(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The nutrunner's effect has two outcomes (torque reached, failed): failing five times in a row at one bolt
+    brings the station back to one state five times, but the effect happened each time, with the other outcome:
+    nothing took its condition away, so it is retried, not put in error as a livelock. (Before, the third failure
+    was diagnosed "nr.tqr_m never became true" and a 200-order run with --fail-rate 0.2 ran out of retries.)"""
+    from deploy.local.inprocess import run_in_process
+    from hubs.emulator import EffectEmulator
+    from tests.fault_station.model import bolt_station
+
+    failures = {"left": 5}
+    chosen = EffectEmulator._choose
+
+    def fail_first(self: EffectEmulator, t: Transition) -> int:
+        outcome = chosen(self, t)
+        if len(t.outcomes) > 1 and failures["left"] > 0:
+            failures["left"] -= 1
+            return 1
+        return outcome
+
+    monkeypatch.setattr(EffectEmulator, "_choose", fail_first)
+    summary = run_in_process(bolt_station("failing", (1,)), seed=1)
+    assert failures["left"] == 0  # the five failures happened
+    assert summary.finished, summary.reason
+    assert not [line for line in summary.log if "livelock" in line or "error" in line], summary.log
