@@ -178,7 +178,7 @@ class PlanProgress:
         """An effect step that was due and lost its condition before it happened, and what took it away."""
         for j, when_due in sorted(self.due.items()):
             t = self.transitions[j]
-            if j in self.done or t.guard(state) or self._came_otherwise(t, when_due, state):
+            if j in self.done or t.guard(state) or self._moved_on(t, when_due, state):
                 continue
             changed = [i for i in sorted(t.reads) if when_due[i] != state[i]]
             if not changed:
@@ -191,15 +191,12 @@ class PlanProgress:
         return None
 
     @staticmethod
-    def _came_otherwise(t: CompiledTransition, when_due: State, state: State) -> bool:
-        """The effect happened, with another of its outcomes than the plan's (a tightening that failed): not
-        lost. Every value that outcome writes is there now, and at least one of them is new."""
-        for outcome in t.outcomes:
-            written = outcome(when_due)
-            changed = [i for i in t.writes if written[i] != when_due[i]]
-            if changed and all(state[i] == written[i] for i in changed):
-                return True
-        return False
+    def _moved_on(t: CompiledTransition, when_due: State, state: State) -> bool:
+        """The effect's device moved on: a value the effect writes is no longer what it was when the effect was
+        due. The effect happened, with another of its outcomes than the plan's (a tightening that failed), or
+        it and the device's next effect both came between two measurements (a move's start and its arrival,
+        under load): not lost. A lost effect's own values stay; only what its guard reads was taken away."""
+        return any(state[i] != when_due[i] for i in t.writes)
 
     def note_sent(self, compiled: CompiledModel, t: CompiledTransition, step: int | None) -> None:
         """A command or automatic transition fired (plan step `step`, if it is one): it set its resources going."""

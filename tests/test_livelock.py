@@ -132,3 +132,27 @@ def test_a_tightening_that_fails_again_and_again_from_one_state_is_no_livelock(m
     assert failures["left"] == 0  # the five failures happened
     assert summary.finished, summary.reason
     assert not [line for line in summary.log if "livelock" in line or "error" in line], summary.log
+
+
+def test_a_move_whose_start_and_arrival_come_in_one_measurement_is_not_lost() -> None:
+    """Under load a robot's move can start and arrive between two measurements: its start effect (pos_m :=
+    unknown) is never seen, yet nothing took its condition away. Before, that was "ur.pos_m never became
+    unknown … left above_engine (now at_frame)", and three of them a livelock of a healthy station (a fresh
+    clone's suite, the reference station at speed 20 beside two other test workers)."""
+    from controller.engine import PlanProgress
+    from tests.fault_station.model import bolt_station
+    from tests.test_engine import plan_for
+
+    compiled = CompiledModel(bolt_station("moves", (1,)))
+    start = compiled.initial()
+    plan = plan_for(compiled, start, "ur.pos_m == at_bolt1")
+    progress = PlanProgress(compiled, plan)
+    commanded = plan.states[1]  # the move commanded: its start effect is due
+    progress.done.add(0)
+    progress.note_due(commanded)
+    arrived = compiled.with_values(commanded, {"ur.pos_m": "at_bolt1"})
+    assert progress.lost_effect(compiled, arrived) is None
+    # Taken away by something else (the command withdrawn before the robot moved): lost, and said so.
+    withdrawn = compiled.with_values(commanded, {"ur.ref_pos_c": "home"})
+    lost = progress.lost_effect(compiled, withdrawn)
+    assert lost is not None and "ur.pos_m never became unknown" in lost.never, lost
