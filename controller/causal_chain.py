@@ -54,20 +54,22 @@ class CausalChain:
             differing = [i for i in candidates if state[i] != after[i]]
             if not differing:
                 return
-            effect = self._explaining(state, after, differing)
-            if effect is None:
+            explained = self._explaining(state, after, differing)
+            if explained is None:
                 for i in differing:  # nothing explains it: it starts no chain
                     self.ready.pop(i, None)
                 return
-            moved = self._apply(effect, state, after)
+            effect, moved = explained
             self._happened(effect, self.seconds.get(effect.name, 0.0),
                            [i for i in effect.writes if moved[i] != state[i]])
             state = moved
 
-    def _explaining(self, state: State, after: State, differing: list[int]) -> CompiledTransition | None:
+    def _explaining(self, state: State, after: State,
+                    differing: list[int]) -> tuple[CompiledTransition, State] | None:
         """An effect enabled in `state` with an outcome that writes only values `after` has, at least one of
-        them new; of several, the one whose chain starts first (the bound stays a bound)."""
-        best: CompiledTransition | None = None
+        them new, and the state that outcome makes; of several, the one whose chain starts first (the bound
+        stays a bound)."""
+        best: tuple[CompiledTransition, State] | None = None
         best_start = 0.0
         seen: set[str] = set()
         for i in differing:
@@ -75,26 +77,21 @@ class CausalChain:
                 if effect.name in seen:
                     continue
                 seen.add(effect.name)
-                if not effect.guard(state) or not any(self._moves_towards(o(state), state, after, effect.writes)
-                                                      for o in effect.outcomes):
+                if not effect.guard(state):
+                    continue
+                moved = next((m for m in (o(state) for o in effect.outcomes)
+                              if self._moves_towards(m, state, after, effect.writes)), None)
+                if moved is None:
                     continue
                 start = self._start(effect)
                 if best is None or start < best_start:
-                    best, best_start = effect, start
+                    best, best_start = (effect, moved), start
         return best
 
     @staticmethod
     def _moves_towards(outcome: State, state: State, after: State, writes: frozenset[int]) -> bool:
         changed = [i for i in writes if outcome[i] != state[i]]
         return bool(changed) and all(outcome[i] == after[i] for i in changed)
-
-    @staticmethod
-    def _apply(effect: CompiledTransition, state: State, after: State) -> State:
-        for outcome in effect.outcomes:
-            moved = outcome(state)
-            if CausalChain._moves_towards(moved, state, after, effect.writes):
-                return moved
-        return state
 
     def _start(self, transition: CompiledTransition) -> float:
         return max((self.ready.get(i, 0.0) for i in self._reads[transition.name]), default=0.0)

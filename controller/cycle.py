@@ -159,16 +159,15 @@ class CycleReport:
     first: Bound | None = None  # the first plan's bound
     busiest: str = ""  # the resource with the most work done (effects seen happen, at their durations)
     busiest_work: float = 0.0
-    chain: float = 0.0  # the run's longest causal chain (controller/causal_chain.py)
+    chain: float = 0.0  # the run's longest causal chain (controller/causal_chain.py), the first plan's included
 
     @property
     def ratio(self) -> float:
         return self.cycle / self.bound if self.bound > 0 else 0.0
 
     def lines(self) -> list[str]:
-        chain = max(self.chain, 0.0 if self.first is None else self.first.chain)
-        made_of = (f"busiest resource {self.busiest} {self.busiest_work:.1f} s of work" if self.busiest_work >= chain
-                   else f"the run's longest causal chain {chain:.1f} s")
+        made_of = (f"busiest resource {self.busiest} {self.busiest_work:.1f} s of work"
+                   if self.busiest_work >= self.chain else f"the run's longest causal chain {self.chain:.1f} s")
         return [f"cycle {self.cycle:.1f} s, bound {self.bound:.1f} s: {made_of}; cycle/bound {self.ratio:.2f}; "
                 f"last plan predicted to end at {self.predicted:.1f} s",
                 *(f"  {r.text}" for r in self.idle)]
@@ -198,7 +197,7 @@ class CycleRecord:
         self.plan_bound = bound
         if self.first_bound is None and bound.seconds > 0:
             self.first_bound = bound
-            self.bound = max(self.bound, now + bound.chain)
+            self.chained(now + bound.chain)
 
     def effect_done(self, resource: str, seconds: float) -> None:
         """An effect of `resource` seen happen: its duration is work that no schedule can overlap on it."""
@@ -206,7 +205,7 @@ class CycleRecord:
         self.bound = max(self.bound, self.work[resource])
 
     def chained(self, longest: float) -> None:
-        """The run's longest causal chain so far (controller/causal_chain.py)."""
+        """The run's longest causal chain so far (controller/causal_chain.py, or the first plan's)."""
         self.chain = max(self.chain, longest)
         self.bound = max(self.bound, longest)
 

@@ -38,7 +38,7 @@ def cycle_info(report: CycleReport) -> CycleInfo:
     """A cycle report on the wire."""
     return CycleInfo(
         cycle_s=report.cycle, predicted_s=report.predicted, bound_s=report.bound,
-        chain_s=max(report.chain, 0.0 if report.first is None else report.first.chain), busiest=report.busiest,
+        chain_s=report.chain, busiest=report.busiest,
         busiest_work_s=report.busiest_work,
         idle=[ResourceIdleInfo(r.resource, r.idle, list(r.waits[:WAITS_SHOWN])) for r in report.idle])
 

@@ -413,7 +413,7 @@ class CycleInfo(msgspec.Struct, frozen=True):
     cycle_s: float
     predicted_s: float
     bound_s: float
-    chain_s: float = 0.0  # the run's longest causal chain (controller/cycle.py's RunChain)
+    chain_s: float = 0.0  # the run's longest causal chain (controller/causal_chain.py)
     busiest: str = ""  # the resource with the most work done
     busiest_work_s: float = 0.0
     idle: list[ResourceIdleInfo] = msgspec.field(default_factory=list)
