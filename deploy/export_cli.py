@@ -36,7 +36,7 @@ def goals_of(model: Model, texts: list[str], start: dict) -> dict[str, Predicate
 def cmd_export_pddl(args: argparse.Namespace) -> int:
     from common.config.hubs_toml import load_station
     from common.stations import DEFAULT_MODEL, load_model
-    from controller.pddl import Flavour, Unexpressible, encode, render
+    from controller.pddl import Flavour, Unexpressible, encode, render, render_sas
     from controller.stack import build_controller_stack
 
     from .local.statefile import load_state
@@ -70,12 +70,17 @@ def cmd_export_pddl(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         (out / "domain.pddl").write_text(domain)
         (out / "problem.pddl").write_text(problem)
+        if args.sas:
+            (out / "output.sas").write_text(render_sas(task))
     except OSError as exc:
         print(f"hubctl: --out {out}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     print(f"wrote {out / 'domain.pddl'} ({len(task.actions)} actions, {len(task.facts)} facts"
           f"{', derived predicates' if flavour is Flavour.AXIOMS else ', no derived predicates'}) and "
           f"{out / 'problem.pddl'} (goals: {', '.join(goals)})")
+    if args.sas:
+        print(f"wrote {out / 'output.sas'} (SAS+: the model's {len(compiled.paths)} variables multi-valued, for "
+              f"Fast Downward's or SymK's search without the translator)")
     return 0
 
 
@@ -94,4 +99,7 @@ def register_export_command(sub: argparse._SubParsersAction, default_model: str)
     pddl.add_argument("--no-axioms", action="store_true",
                       help="write every condition in place instead of as derived predicates (for tools without "
                            ":derived-predicates; large on a station)")
+    pddl.add_argument("--sas", action="store_true",
+                      help="also write output.sas: the task in Fast Downward's own input language, each model "
+                           "variable one multi-valued variable (docs/pddl.md)")
     pddl.set_defaults(func=cmd_export_pddl)

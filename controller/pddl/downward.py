@@ -1,7 +1,8 @@
 """Fast Downward on an exported task, and its plan read back as statehub moves.
 
-Fast Downward comes from the PyPI wheel `up-fast-downward` (the planner binary inside), a test
-dependency: statehub never needs it to run, only to be checked against an independent planner.
+Fast Downward comes from the PyPI wheel `up-fast-downward` (the planner binary inside), SymK (a symbolic
+planner built on Fast Downward) from `up-symk`; both are test dependencies: statehub never needs them to run,
+only to be checked against independent planners.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from controller.planner.steps import Move
 
 from .encoding import Task
 from .flat import COPIES, flatten, render_flat
+from .sas import render_sas
 from .writer import Flavour, render
 
 
@@ -41,6 +43,11 @@ class Search(Enum):
                         "label_reduction=exact(before_shrinking=true,before_merging=false),max_states=50000,"
                         "threshold_before_merge=1))")
     IPDB = "astar(ipdb())"
+    # SymK's bidirectional symbolic uniform-cost search (BDDs, as statehub's symbolic member): optimal, and the one
+    # optimal search that finishes on the reference station's goal sets. Only on the SAS+ flavour, whose
+    # multi-valued variables it needs (through the translator's binary facts it builds no transition relation in
+    # 10 minutes); Gamer's variable ordering spends its 30 s limit on the derived variables and gains nothing here.
+    SYMBOLIC = "sym_bd(gamer_ordering=false)"
 
     @property
     def optimal(self) -> bool:
@@ -48,6 +55,7 @@ class Search(Enum):
 
 
 FLAT_ONLY = frozenset({Search.LMCUT, Search.MERGE_AND_SHRINK, Search.IPDB})
+SAS_ONLY = frozenset({Search.SYMBOLIC})
 
 
 class DownwardError(RuntimeError):
@@ -61,6 +69,9 @@ class Answer:
 
 
 UNSOLVABLE = (10, 11)  # TRANSLATE_UNSOLVABLE, SEARCH_UNSOLVABLE (driver/returncodes.py)
+INCOMPLETE = 12  # SEARCH_UNSOLVED_INCOMPLETE: how SymK ends a search that exhausted the state space
+# SymK's last lower bound when both frontiers ran dry: no plan of any length (its "infinity", INT_MAX).
+SYMK_EXHAUSTED = "BOUND: 2147483647 < 2147483647"
 
 
 def binaries() -> Path:
@@ -71,7 +82,18 @@ def binaries() -> Path:
     return Path(spec.origin).parent / "downward" / "builds" / "release" / "bin"
 
 
-def _call(command: list[str], workdir: Path, timeout: float, what: str, stdin: Path | None = None) -> int:
+def symk_binary() -> Path:
+    """SymK's search binary, as the `up-symk` wheel installs it."""
+    spec = importlib.util.find_spec("up_symk")
+    if spec is None or spec.origin is None:
+        raise DownwardError("SymK is not installed: pip install up-symk (in statehub's test extras)")
+    return Path(spec.origin).parent / "symk" / "builds" / "release" / "bin" / "downward"
+
+
+def _call(command: list[str], workdir: Path, timeout: float, what: str, stdin: Path | None = None,
+          exhausted: str | None = None) -> int:
+    """The component's exit code: 0 (a plan), or one of UNSOLVABLE (shown to have none; also INCOMPLETE when the
+    output says `exhausted`); anything else raises DownwardError with the output's end."""
     # The components are called as the wheel's driver (fast-downward.py) calls them, without the driver's own
     # interpreter start per call: on a small task those starts are most of the time.
     environment = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(binaries()),
@@ -79,6 +101,8 @@ def _call(command: list[str], workdir: Path, timeout: float, what: str, stdin: P
     with open(stdin) if stdin is not None else contextlib.nullcontext() as source:
         done = subprocess.run(command, cwd=workdir, capture_output=True, text=True, timeout=timeout, check=False,
                               env=environment, stdin=source)
+    if done.returncode == INCOMPLETE and exhausted is not None and exhausted in done.stdout:
+        return UNSOLVABLE[1]
     if done.returncode not in (0, *UNSOLVABLE):
         tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
         raise DownwardError(f"fast-downward exited {done.returncode} on {what}:\n{tail}")
@@ -96,11 +120,19 @@ def run_files(domain: Path, problem: Path, searches: tuple[Search, ...], workdir
                  "--invariant-generation-max-candidates", "0"]
     if _call(translate, workdir, timeout, str(problem)):
         return [None for _ in searches]
+    return run_sas(sas, searches, workdir, timeout)
+
+
+def run_sas(sas: Path, searches: tuple[Search, ...], workdir: Path,
+            timeout: float = 300.0) -> list[tuple[str, ...] | None]:
+    """Per search, the plan Fast Downward (SymK for Search.SYMBOLIC) finds for a SAS+ file, or None for none."""
     plans: list[tuple[str, ...] | None] = []
     for search in searches:
         plan_file = workdir / f"plan-{search.name.lower()}"
-        command = [str(binaries() / "downward"), "--search", search.value, "--internal-plan-file", str(plan_file)]
-        code = _call(command, workdir, timeout, f"{problem} ({search.value})", stdin=sas)
+        binary = symk_binary() if search is Search.SYMBOLIC else binaries() / "downward"
+        command = [str(binary), "--search", search.value, "--internal-plan-file", str(plan_file)]
+        code = _call(command, workdir, timeout, f"{sas} ({search.value})", stdin=sas,
+                     exhausted=SYMK_EXHAUSTED if search is Search.SYMBOLIC else None)
         plans.append(None if code else read_plan(plan_file.read_text()))
     return plans
 
@@ -117,18 +149,25 @@ def read_plan(text: str) -> tuple[str, ...]:
 
 def solve(task: Task, searches: tuple[Search, ...], timeout: float = 300.0,
           flavour: Flavour = Flavour.AXIOMS, copies: int = COPIES) -> list[Answer]:
-    """Write the task (derived predicates, or the flat flavour), run Fast Downward with each search on it and
+    """Write the task (derived predicates, the flat flavour, or SAS+), run Fast Downward with each search on it and
     read each plan back as (transition number, outcome) moves."""
     refused = [s for s in searches if s in FLAT_ONLY and flavour is not Flavour.FLAT]
     if refused:
         raise DownwardError(f"{refused[0].value} refuses derived predicates: run it on Flavour.FLAT")
+    refused = [s for s in searches if s in SAS_ONLY and flavour is not Flavour.SAS]
+    if refused:
+        raise DownwardError(f"{refused[0].value} needs the model's multi-valued variables: run it on Flavour.SAS")
     flat = flatten(task, copies) if flavour is Flavour.FLAT else None
-    domain_text, problem_text = render_flat(flat) if flat is not None else render(task, flavour)
     with tempfile.TemporaryDirectory(prefix="statehub-pddl-") as directory:
         workdir = Path(directory)
-        (workdir / "domain.pddl").write_text(domain_text)
-        (workdir / "problem.pddl").write_text(problem_text)
-        plans = run_files(workdir / "domain.pddl", workdir / "problem.pddl", searches, workdir, timeout)
+        if flavour is Flavour.SAS:
+            (workdir / "output.sas").write_text(render_sas(task))
+            plans = run_sas(workdir / "output.sas", searches, workdir, timeout)
+        else:
+            domain_text, problem_text = render_flat(flat) if flat is not None else render(task, flavour)
+            (workdir / "domain.pddl").write_text(domain_text)
+            (workdir / "problem.pddl").write_text(problem_text)
+            plans = run_files(workdir / "domain.pddl", workdir / "problem.pddl", searches, workdir, timeout)
     if flat is not None:
         plans = [None if plan is None else flat.origins(plan) for plan in plans]
     moves = task.moves

@@ -27,6 +27,7 @@ class Flavour(Enum):
     AXIOMS = "axioms"
     INLINE = "inline"
     FLAT = "flat"  # no derived predicates, disjunctions or conditional effects: `flat.py` writes it
+    SAS = "sas"  # Fast Downward's own input, the model's variables multi-valued: `sas.py` writes it
 
 
 class Writer:

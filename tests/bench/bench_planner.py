@@ -1,4 +1,4 @@
-"""Planner benchmark: `python tests/bench/bench_planner.py [--quick] [--runs N]`.
+"""Planner benchmark: `python tests/bench/bench_planner.py [--quick] [--runs N] [--members WORDS] [--limit S]`.
 
 Prints, side by side in one run:
 
@@ -7,10 +7,11 @@ Prints, side by side in one run:
    marked minimal when shown), A* alone, the symbolic member alone, and breadth-first
    (given up at a state limit), and Fast Downward on the task exported to PDDL (docs/pddl.md), its
    satisficing search (greedy, FF), its optimal one (A* with h^max) and its optimal ones on the flat
-   flavour without derived predicates (A* with lm-cut, with merge-and-shrink; CPU time with that of its
-   processes, the encoding and the translation included). Cases: the reference station (`engine_assembly`, with
-   its synthesized supervisor) — `TightenBolt7` with the filter tool at home, 24 bolts
-   from the frame placed, the `ParkNutrunner + AttachFilterTool + 3 filters + 2 pipes`
+   flavour without derived predicates (A* with lm-cut, with merge-and-shrink), and on the task written in
+   SAS+ (multi-valued variables, no translator) its satisficing search and SymK's symbolic optimal one
+   (CPU time with that of its processes, the encoding and the translation included). Cases: the
+   reference station (`engine_assembly`, with its synthesized supervisor) — `TightenBolt7` with the
+   filter tool at home, 24 bolts from the frame placed, the `ParkNutrunner + AttachFilterTool + 3 filters + 2 pipes`
    goal set, `RobotHome` from the state where the old planner stalled
    (`robothome_state.toml`) — each other station's goal set at its start, and the
    synthetic N-bolt station for N = 4 … 96. Cold: a new goal set on a planner whose
@@ -161,7 +162,7 @@ def cpu_with_children() -> float:
 
 
 def fast_downward(search: Search, flavour: Flavour = Flavour.AXIOMS) -> Callable[[Planner, Case, float], Outcome]:
-    """Fast Downward on the exported task (docs/pddl.md): encoding, writing, translating and searching."""
+    """Fast Downward (or SymK) on the exported task (docs/pddl.md): encoding, writing, translating and searching."""
 
     def run(planner: Planner, case: Case, limit: float) -> Outcome:
         began = cpu_with_children()
@@ -187,6 +188,8 @@ MEMBERS: list[tuple[str, Callable[[Planner, Case, float], Outcome]]] = [
     ("Fast Downward: optimal", fast_downward(Search.OPTIMAL)),
     ("Fast Downward: optimal, flat, lm-cut", fast_downward(Search.LMCUT, Flavour.FLAT)),
     ("Fast Downward: optimal, flat, merge-and-shrink", fast_downward(Search.MERGE_AND_SHRINK, Flavour.FLAT)),
+    ("Fast Downward: satisficing, SAS+", fast_downward(Search.SATISFICING, Flavour.SAS)),
+    ("SymK: optimal (symbolic), SAS+", fast_downward(Search.SYMBOLIC, Flavour.SAS)),
 ]
 
 
@@ -358,13 +361,21 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer cases and repeats, short limits")
     parser.add_argument("--runs", type=int, default=0, help="also record the goal sets of N in-process runs")
     parser.add_argument("--only-runs", action="store_true", help="with --runs: skip the table of members")
+    parser.add_argument("--members", default="", help="only the members whose name contains one of these "
+                                                      "comma-separated words (e.g. 'SymK,portfolio')")
+    parser.add_argument("--limit", type=float, default=0.0, help="seconds per member (default 30, --quick 5)")
     args = parser.parse_args()
+    if args.members:
+        words = [w.strip().lower() for w in args.members.split(",") if w.strip()]
+        MEMBERS[:] = [(name, run) for name, run in MEMBERS if any(w in name.lower() for w in words)]
+        if not MEMBERS:
+            parser.error(f"--members {args.members!r} names no member")
     print(f"planner benchmark (python {sys.version.split()[0]}, {os.cpu_count()} cpu, "
           f"load average {os.getloadavg()[0]:.1f})")
     if args.only_runs:
         bench_runs(args.runs)
         return
-    limit = 5.0 if args.quick else 30.0
+    limit = args.limit or (5.0 if args.quick else 30.0)
     repeats = 1 if args.quick else 3
     rows: list[list[str]] = []
     for case in reference_cases():
