@@ -239,7 +239,7 @@ def test_no_step_comes_between_an_actions_chain_of_checks_and_the_action() -> No
 # 2,600 and 21,700 operators in each); merge-and-shrink, iPDB and blind search time out too; the reference
 # station's longer sets need more layers still.
 OPTIMAL_STATION_CASES = ("machine_tending: 1 goals at start",)
-# Every station's goal sets but the 24 bolts (241 steps: SymK's layers grow to 14 s each by the 96th, docs/pddl.md):
+# Every station's goal sets but the 24 bolts (241 steps: SymK's layers take 10-15 s each by the 106th, docs/pddl.md):
 # SymK on the SAS+ task shows their optimum.
 SYMBOLIC_STATION_CASES = ("machine_tending: 1 goals at start", "shared_workspace: 9 goals at start",
                           "TightenBolt7 (filter tool at home)", "Park+AttachFilterTool+3 filters+2 pipes",

@@ -63,7 +63,12 @@ class SasWriter:
         paths: dict[str, list[Fact]] = {}
         for fact in task.facts:
             paths.setdefault(fact.path, []).append(fact)
-        for facts in paths.values():
+        written = {f.path for action in task.actions for effect in action.effects for f in effect.adds}
+        # Variables no action writes first, then model order, as statehub's symbolic member orders its BDD
+        # variables (controller/planner/symbolic_encoding.py variable_order); a symbolic planner without its own
+        # ordering keeps this one.
+        order = [p for p in paths if p not in written] + [p for p in paths if p in written]
+        for facts in (paths[p] for p in order):
             number = len(self.sas.variables)
             self.sas.variables.append((f"var{number}", tuple(f"Atom {task.facts[f]}()" for f in facts), -1))
             self.atom.update({f: (number, i) for i, f in enumerate(facts)})
@@ -106,7 +111,10 @@ class SasWriter:
 
     def write(self) -> SasTask:
         task, sas = self.task, self.sas
-        sas.init = [self.atom[f][1] for f in task.init]
+        sas.init = [0] * len(sas.variables)  # the model's variables; no derived one exists yet
+        for fact in task.init:
+            variable, value = self.atom[fact]
+            sas.init[variable] = value
         for action in task.actions:
             precondition = self.conjunction(AllOf(action.precondition) if action.precondition else ALWAYS)
             if precondition is None:
