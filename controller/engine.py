@@ -223,9 +223,18 @@ class PlanProgress:
         if not timed:
             return Waited(WaitKind.PLAN, "")
         last = max(timed, key=lambda d: (self.done_at[d], d))
-        t = self.transitions[last]
-        owner = compiled.paths[min(t.writes)].split(".", 1)[0] if t.writes else ""
-        return Waited(WaitKind.RESOURCE, owner)
+        resources = compiled.model.resource_by_name
+        while True:
+            t = self.transitions[last]
+            owner = compiled.paths[min(t.writes)].split(".", 1)[0] if t.writes else ""
+            if owner in resources:
+                return Waited(WaitKind.RESOURCE, owner)
+            # A tracking transition (the engine's record of a product) fires the moment its guard holds: the wait
+            # was for the step that made it hold, a device's.
+            earlier = [d for d in self.depends[last] if d in self.done_at]
+            if not earlier:
+                return Waited(WaitKind.GUARD, t.name)
+            last = max(earlier, key=lambda d: (self.done_at[d], d))
 
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
         differing = [i for i in self.relevant if state[i] != self.expected[i]]

@@ -8,6 +8,7 @@ from common.model import (
     OperationState,
     Phase,
     Resource,
+    TransitionKind,
     ability,
     all_of,
     command,
@@ -21,7 +22,7 @@ from common.model.compiled import CompiledModel
 from common.wire.ctl import ReplanReason
 from controller.deorder import Execution
 from controller.engine import Engine, PlanProgress
-from controller.planner import Plan, Planner
+from controller.planner import Budget, Plan, Planner
 from tests.test_model import nutrunner_resource
 
 
@@ -205,3 +206,32 @@ def test_a_command_whose_effect_would_undo_a_record_waits_for_it_and_a_change_be
     tick = engine.tick(c.with_values(tick.state, {"z.zone_m": "shared"}), progress=progress, disabled=frozenset({"a"}))
     assert tick.replan is not None and tick.replan.reason is ReplanReason.LEFT_PLAN
     assert "z.zone_m" in tick.replan.detail
+
+
+def test_a_step_that_waited_for_a_tracking_transition_names_the_device_behind_it() -> None:
+    """A tracking transition (the engine's record of a product: a filter mounted) fires the moment its guard holds,
+    so a command that waited for it waited for the device step that made it hold: the idle report names that
+    device, never the product ("resource engine")."""
+    from controller.cycle import WaitKind
+    from tests.bench.bench_planner import reference_cases
+
+    case = next(c for c in reference_cases() if c.name.startswith("Park+"))
+    planner = Planner(case.compiled, case.forbidden)
+    plan = planner.plan(case.start, dict(case.goals), budget=Budget(improve_expansions=0))
+    assert isinstance(plan, Plan), plan
+    resources = case.compiled.model.resource_by_name
+    tracked = 0
+    for execution in (Execution.TRACE, Execution.PARTIAL_ORDER):
+        progress = PlanProgress(case.compiled, plan, execution=execution)
+        for j, t in enumerate(progress.transitions):
+            if t.kind is not TransitionKind.DELIBERATE:
+                continue
+            progress.done_at = {d: float(d) for d in range(j)}  # every earlier step done, in plan order
+            last = max(progress.depends[j], default=None)
+            if last is not None:
+                owner = case.compiled.paths[min(progress.transitions[last].writes)].split(".", 1)[0]
+                tracked += owner not in resources
+            waited = progress.waited_for(case.compiled, j, float(j))
+            assert waited.kind in (WaitKind.RESOURCE, WaitKind.PLAN), waited
+            assert waited.kind is WaitKind.PLAN or waited.what in resources, (t.name, waited)
+    assert tracked, "no command of this plan waits for a tracking transition: the test would say nothing"
