@@ -222,19 +222,17 @@ class PlanProgress:
         timed = [d for d in self.depends[j] if d in self.done_at]
         if not timed:
             return Waited(WaitKind.PLAN, "")
-        last = max(timed, key=lambda d: (self.done_at[d], d))
-        resources = compiled.model.resource_by_name
         while True:
+            last = max(timed, key=lambda d: (self.done_at[d], d))
             t = self.transitions[last]
-            owner = compiled.paths[min(t.writes)].split(".", 1)[0] if t.writes else ""
-            if owner in resources:
-                return Waited(WaitKind.RESOURCE, owner)
+            owner = compiled.model.resource_of(compiled.paths[min(t.writes)]) if t.writes else None
+            if owner is not None:
+                return Waited(WaitKind.RESOURCE, owner.name)
             # A tracking transition (the engine's record of a product) fires the moment its guard holds: the wait
             # was for the step that made it hold, a device's.
-            earlier = [d for d in self.depends[last] if d in self.done_at]
-            if not earlier:
+            timed = [d for d in self.depends[last] if d in self.done_at]
+            if not timed:
                 return Waited(WaitKind.GUARD, t.name)
-            last = max(earlier, key=lambda d: (self.done_at[d], d))
 
     def deviation(self, compiled: CompiledModel, state: State) -> str | None:
         differing = [i for i in self.relevant if state[i] != self.expected[i]]

@@ -63,6 +63,11 @@ def write_inline(task_domain_problem: tuple[str, str], directory: Path, plan: tu
     return paths
 
 
+def until_shown_shortest(seconds: float) -> Budget:
+    """As `hubctl plan` asks: the portfolio until it shows its plan shortest (the symbolic member may need it)."""
+    return Budget(first_expansions=10**7, improve_expansions=10**8, seconds=seconds, improve_seconds=seconds)
+
+
 def check_agreement(compiled: CompiledModel, start: State, goals: dict[str, Predicate], forbidden: Predicate | None,
                     disabled: frozenset[str], label: str, directory: Path | None = None,
                     seconds: float = 30.0) -> str:
@@ -74,9 +79,7 @@ def check_agreement(compiled: CompiledModel, start: State, goals: dict[str, Pred
     # The same task in SAS+ (multi-valued variables, no translator): SymK's symbolic search, h^max, satisficing.
     sas = solve(task, (Search.SYMBOLIC, Search.OPTIMAL, Search.SATISFICING), timeout=600, flavour=Flavour.SAS)
     symbolic, sas_optimal, _ = sas
-    # As `hubctl plan` asks: the portfolio until it shows its plan shortest (the symbolic member may need it).
-    budget = Budget(first_expansions=10**7, improve_expansions=10**8, seconds=seconds, improve_seconds=seconds)
-    ours = Planner(compiled, forbidden).plan(start, goals, disabled, budget=budget)
+    ours = Planner(compiled, forbidden).plan(start, goals, disabled, budget=until_shown_shortest(seconds))
     if isinstance(ours, NoPlan):
         found = [a.plan for a in (optimal, satisficing, lmcut, *sas) if a.plan is not None]
         assert not found, f"{label}: statehub finds no plan ({ours.reason}), Fast Downward finds {found[0]}"
@@ -110,8 +113,7 @@ def check_satisficing(compiled: CompiledModel, start: State, goals: dict[str, Pr
     task = encode(compiled, start, goal, forbidden, disabled)
     # On SAS+ (no translator): 0.8 s on the 24 bolts, where the PDDL files took minutes to translate and search.
     (satisficing,) = solve(task, (Search.SATISFICING,), timeout=600, flavour=Flavour.SAS)
-    budget = Budget(first_expansions=10**7, improve_expansions=10**8, seconds=seconds, improve_seconds=seconds)
-    ours = Planner(compiled, forbidden).plan(start, goals, disabled, budget=budget)
+    ours = Planner(compiled, forbidden).plan(start, goals, disabled, budget=until_shown_shortest(seconds))
     assert isinstance(ours, Plan), f"{label}: statehub finds no plan ({ours.reason})"
     assert ours.stats.minimal, f"{label}: statehub did not show its plan shortest"
     assert satisficing.moves is not None, f"{label}: statehub plans {len(ours.steps)} steps, Fast Downward none"
@@ -279,8 +281,7 @@ def statehubs_shortest(case: Case) -> int:
         found = member.search(case.start, all_of(*goals.values()), deadline=time.perf_counter() + 600)
         assert found.moves is not None, f"{case.name}: statehub's symbolic member finds no plan ({found.reason})"
         return len(found.moves)
-    budget = Budget(first_expansions=10**7, improve_expansions=10**8, seconds=600, improve_seconds=600)
-    ours = planner.plan(case.start, goals, frozenset(), budget=budget)
+    ours = planner.plan(case.start, goals, frozenset(), budget=until_shown_shortest(600.0))
     assert isinstance(ours, Plan), f"{case.name}: statehub finds no plan ({ours.reason})"
     assert ours.stats.minimal, f"{case.name}: statehub did not show its plan shortest"
     return len(ours.steps)

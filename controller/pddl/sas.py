@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .encoding import Condition, Task
-from .formulas import ALWAYS, AllOf, AnyOf, Fact, Named, Other
+from .formulas import AllOf, AnyOf, Fact, Named, Other
 
 Atom = tuple[int, int]  # (SAS+ variable, value)
 TRUE_VALUE, DEFAULT_VALUE = 0, 1  # a derived variable's values, as Fast Downward's translator writes them
@@ -116,13 +116,13 @@ class SasWriter:
             variable, value = self.atom[fact]
             sas.init[variable] = value
         for action in task.actions:
-            precondition = self.conjunction(AllOf(action.precondition) if action.precondition else ALWAYS)
+            precondition = self.conjunction(AllOf(action.precondition))  # AllOf(()) is ALWAYS: no condition
             if precondition is None:
                 continue  # never applicable
             required = dict(precondition)
             effects: list[tuple[list[Atom], int, int, int]] = []
             for effect in action.effects:
-                when = self.conjunction(AllOf(tuple(effect.when))) if effect.when else []
+                when = self.conjunction(AllOf(effect.when))
                 if when is None:
                     continue
                 for fact in effect.adds:
