@@ -186,8 +186,8 @@ def symk_on_the_plans_variables(planner: Planner, case: Case, limit: float) -> O
     its optimum there is a lower bound, "yes" when it equals the plan's length (the plan is then shown shortest).
     The plan is made first and its time not counted."""
     goal = all_of(*case.goals.values())
-    plan = planner.plan(case.start, case.goals, budget=Budget(first_expansions=10**9, improve_expansions=0,
-                                                               seconds=limit))
+    plan = planner.plan(case.start, case.goals, budget=Budget(first_expansions=10**9, improve_expansions=10**9,
+                                                               seconds=limit, improve_seconds=limit))
     if not isinstance(plan, Plan):
         return Outcome(0.0, "n/a", "-", "-")
     began = cpu_with_children()
