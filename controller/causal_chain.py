@@ -20,13 +20,18 @@ from collections.abc import Iterable, Mapping
 from common.model import TransitionKind
 from common.model.compiled import CompiledModel, CompiledTransition, State
 
+from .exclusions import RunLog
+
 MAX_EFFECTS_PER_CHANGE = 64  # effects explained in one batch of measured values: a bound, never reached
 
 
 class CausalChain:
-    def __init__(self, compiled: CompiledModel, seconds: Mapping[str, float]) -> None:
-        """`seconds`: each effect's duration by transition name (controller/cycle.py's `effect_seconds`)."""
+    def __init__(self, compiled: CompiledModel, seconds: Mapping[str, float], log: RunLog | None = None) -> None:
+        """`seconds`: each effect's duration by transition name (controller/cycle.py's `effect_seconds`); `log`:
+        where each transition seen happen is also kept, for the bound from the specifications' exclusions
+        (controller/exclusions.py)."""
         self.compiled = compiled
+        self.log = log
         self.seconds = seconds
         self.ready: dict[int, float] = {}  # variable index -> when, in the chain, it got its present value
         self.longest = 0.0
@@ -43,11 +48,16 @@ class CausalChain:
             transition = self.compiled.by_name.get(name)
             if transition is not None and transition.kind is not TransitionKind.EFFECT:
                 self._happened(transition, 0.0, transition.writes)
+                if self.log is not None:
+                    self.log.fired(transition)
 
     def measured(self, before: State, after: State, changed: Iterable[str] | None = None) -> None:
         """Measured values went from `before` to `after` (`changed`: the paths that did, if known): the effects
         that explain it, one after another."""
         state = before
+        if self.log is not None and tuple(self.log.state) != tuple(before):
+            # What the log has not seen change (a value forced between two measurements) changed by itself.
+            self.log.unexplained(before, [i for i, v in enumerate(before) if self.log.state[i] != v])
         candidates = (range(len(after)) if changed is None
                       else [self.compiled.index[p] for p in changed if p in self.compiled.index])
         for _ in range(MAX_EFFECTS_PER_CHANGE):
@@ -58,10 +68,14 @@ class CausalChain:
             if explained is None:
                 for i in differing:  # nothing explains it: it starts no chain
                     self.ready.pop(i, None)
+                if self.log is not None:
+                    self.log.unexplained(after, differing)
                 return
             effect, moved = explained
             self._happened(effect, self.seconds.get(effect.name, 0.0),
                            [i for i in effect.writes if moved[i] != state[i]])
+            if self.log is not None:
+                self.log.effect(effect, moved)
             state = moved
 
     def _explaining(self, state: State, after: State,

@@ -43,8 +43,17 @@ from controller.recording.schema import HubState
 
 from .causal_chain import CausalChain
 from .control import ControlCore, PlanRequest
-from .cycle import CycleRecord, CycleReport, effect_seconds, lower_bound, predicted_finish, step_seconds
+from .cycle import (
+    CycleRecord,
+    CycleReport,
+    effect_seconds,
+    lower_bound,
+    predicted_finish,
+    shortest_seconds,
+    step_seconds,
+)
 from .engine import PlanProgress, TickResult
+from .exclusions import Exclusions, RunLog
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
 from .planner.plans import Execution
@@ -82,10 +91,11 @@ class Adopted:
 class ControlLoop:
     def __init__(self, core: ControlCore, recorder: RunRecorder, commanded: Iterable[str],
                  clock: Callable[[], float], seconds: Mapping[str, float] | None = None,
-                 durations: Mapping[str, Duration] | None = None) -> None:
+                 durations: Mapping[str, Duration] | None = None, shortest: Mapping[str, float] | None = None) -> None:
         """`commanded`: the resources whose commands are sent (in the model's order, whichever order this is);
         `clock`: read as each step begins; `seconds`: each effect's duration (controller/cycle.py; default:
-        the model's), for the plans' predicted finish and bound; `durations`: each resource's interval (and the
+        the model's longest), for the plans' predicted finish; `shortest`: each effect's least (default: the
+        model's, or `seconds` where that is less), for the bounds; `durations`: each resource's interval (and the
         effects' whose ability takes its own: `DurationTable.keyed()`), what
         plans are checked in time against before use (controller/timed_check.py; None: not checked; the check
         runs in the caller's thread, seconds for a plan of hundreds of steps: in process and in replay, not yet
@@ -95,12 +105,17 @@ class ControlLoop:
         self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self._goals = {name: op.goal for name, op in core.model.operation_by_name.items()}
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
-        self.cycle = CycleRecord([r.name for r in core.model.resources])
+        model_shortest = shortest_seconds(core.model)
+        self.shortest = (dict(shortest) if shortest is not None else
+                         {name: min(s, self.seconds.get(name, s)) for name, s in model_shortest.items()})
+        self.run_log = RunLog(core.compiled, core.state)
+        self.cycle = CycleRecord([r.name for r in core.model.resources],
+                                 Exclusions(core.compiled, self.run_log, self.shortest))
         self.settle = ProductSettle(core.compiled, self.seconds, core.clock)
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
         self._counted_steps: set[int] = set()
         self._step_seconds: list[float] = []
-        self.chain = CausalChain(core.compiled, self.seconds)
+        self.chain = CausalChain(core.compiled, self.shortest, self.run_log)
         self.recorder = recorder
         self.clock = clock
         model, index = core.model, core.compiled.index
@@ -182,6 +197,7 @@ class ControlLoop:
                 core.livelock.finished()  # a new product: no state seen for the last one says anything
                 figures = flow.finished_order(done.order, core.clock(), self.cycle.spans)
                 self.cycle.forget_before(figures.end)  # the next order's window begins here
+                self.run_log.restart(core.state)
                 news.append(OrderFinished(done.order.id, done.order.product_id, done.order.variant,
                                           figures.cycle_s, order_line(figures)))
         # A station that runs every operation once (it never had an order) takes an order added meanwhile
@@ -342,7 +358,8 @@ class ControlLoop:
         compiled = self.core.compiled
         durations = step_seconds(compiled, progress.plan, self.seconds)
         self.cycle.planned(self.core.clock(), predicted_finish(progress.ordering, durations),
-                           lower_bound(compiled, progress.plan, progress.ordering, durations))
+                           lower_bound(compiled, progress.plan, progress.ordering,
+                                       step_seconds(compiled, progress.plan, self.shortest)))
 
     def _count_effects(self) -> None:
         """The effects of the plan under way seen happen, each counted once as work of its resource."""
@@ -351,16 +368,17 @@ class ControlLoop:
             return
         if progress is not self._counted_plan:
             self._counted_plan, self._counted_steps = progress, set()
-            self._step_seconds = step_seconds(self.core.compiled, progress.plan, self.seconds)
+            self._step_seconds = step_seconds(self.core.compiled, progress.plan, self.shortest)
         for j in progress.done - self._counted_steps:
             t = progress.transitions[j]
             if t.kind is TransitionKind.EFFECT:
                 self.cycle.effect_done(effect_owner(t.source), self._step_seconds[j])
         self._counted_steps |= progress.done
 
-    def cycle_report(self) -> CycleReport:
-        """Cycle time so far, the bound, and each resource's idle time with what it waited for."""
-        return self.cycle.report(self.core.clock())
+    def cycle_report(self, *, final: bool = False) -> CycleReport:
+        """Cycle time so far, the bound, and each resource's idle time with what it waited for; `final`: the run
+        is done, and the bound takes in the specifications' exclusions."""
+        return self.cycle.report(self.core.clock(), final=final)
 
     # --- the end ------------------------------------------------------------------------
     def finish(self, outcome: RunOutcome, note: str = "") -> None:

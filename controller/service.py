@@ -44,7 +44,7 @@ from controller.recording.schema import RunMeta
 from controller.station_hold import StationHold
 
 from .commandpublisher import CommandPublisher
-from .cycle import effect_seconds
+from .cycle import effect_seconds, shortest_seconds
 from .ingest import StateIngest
 from .loop import ControlLoop
 from .loopmeter import LoopMeter
@@ -102,7 +102,7 @@ class ControllerService:
         self.recorder = RunRecorder(self.core, self.clock, sink)
         # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
         self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,
-                                effect_seconds(model, config.delays))
+                                effect_seconds(model, config.delays), shortest=shortest_seconds(model, config.delays))
         self.meter = LoopMeter()
         self.ingest = StateIngest(self.loop, self.keys, self.codecs, self.controller_id, self.watchdog,
                                   self.command_hold, self.meter, self._forged)

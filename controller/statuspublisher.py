@@ -40,7 +40,8 @@ def cycle_info(report: CycleReport) -> CycleInfo:
         cycle_s=report.cycle, predicted_s=report.predicted, bound_s=report.bound,
         chain_s=report.chain, busiest=report.busiest,
         busiest_work_s=report.busiest_work,
-        idle=[ResourceIdleInfo(r.resource, r.idle, list(r.waits[:WAITS_SHOWN])) for r in report.idle])
+        idle=[ResourceIdleInfo(r.resource, r.idle, list(r.waits[:WAITS_SHOWN])) for r in report.idle],
+        apart_s=report.apart, apart=list(report.apart_resources))
 
 
 class StatusPublisher:
@@ -118,4 +119,4 @@ class StatusPublisher:
         if self.cycle is None:
             return None
         end = self.finished_at if self.finished_at is not None else self.core.clock()
-        return cycle_info(self.cycle.report(end))
+        return cycle_info(self.cycle.report(end, final=self.finished_at is not None))

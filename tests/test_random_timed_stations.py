@@ -59,6 +59,11 @@ def check_followable_completes(seed: int) -> None:
     shape, summary, recorded = run(seed, followable=True, time_limit=FOLLOWABLE_TIME_LIMIT)
     assert summary.finished, explain(seed, True, shape, summary)
     assert not recorded.livelocks(), explain(seed, True, shape, summary)
+    # The run is itself a schedule of its work with its causes under the supervisor, its effects drawn within their
+    # durations: no bound may exceed it (the specifications' exclusions made the bound in 54 of 80 seeds).
+    cycle = summary.cycle
+    assert cycle is not None
+    assert cycle.bound <= cycle.cycle + 1e-9, (cycle.lines(), explain(seed, True, shape, summary))
     assert recorded.most_requests_from_one_state() <= GIVE_UP_AFTER, explain(seed, True, shape, summary)
 
 

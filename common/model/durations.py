@@ -206,11 +206,21 @@ def effect_owner(transition: Transition) -> str:
 def effect_delays(model: Model, configured: Mapping[str, Duration | float] | None = None) -> dict[str, float]:
     """The longest each effect of the model takes, by transition name: what the engine bounds a held
     step by (controller/engine.py). `configured`: resource -> hubs.toml's delay."""
+    return {name: duration.max_s for name, duration in _effect_durations(model, configured).items()}
+
+
+def effect_shortest(model: Model, configured: Mapping[str, Duration | float] | None = None) -> dict[str, float]:
+    """The shortest each effect of the model takes, by transition name: what a lower bound on a run counts
+    (controller/cycle.py: no schedule is shorter only if no effect is taken faster than it can be)."""
+    return {name: duration.min_s for name, duration in _effect_durations(model, configured).items()}
+
+
+def _effect_durations(model: Model, configured: Mapping[str, Duration | float] | None) -> dict[str, Duration]:
     # The standard types' declarations live in common.resources, a package built on this one.
     from common.resources import durations_of
 
     table = durations_of(model, {r: as_duration(d) for r, d in (configured or {}).items()})
-    return {t.name: table.of_transition(t).max_s for t in model.ability_transitions
+    return {t.name: table.of_transition(t) for t in model.ability_transitions
             if t.kind is TransitionKind.EFFECT and t.written()}
 
 

@@ -407,7 +407,8 @@ class ResourceIdleInfo(msgspec.Struct, frozen=True):
 class CycleInfo(msgspec.Struct, frozen=True):
     """The goal set's timing, in a status, in seconds since the controller started (controller/cycle.py):
     the predicted finish of the plan under way, the lower bound (no schedule of the work ends sooner: the
-    busiest resource's necessary work, the run's longest causal chain), and each resource's idle time.
+    busiest resource's necessary work, the run's longest causal chain, and once the run is done the work the
+    specifications keep apart), and each resource's idle time.
     `cycle_s`: the time so far, or when every operation finished."""
 
     cycle_s: float
@@ -417,6 +418,8 @@ class CycleInfo(msgspec.Struct, frozen=True):
     busiest: str = ""  # the resource with the most work done
     busiest_work_s: float = 0.0
     idle: list[ResourceIdleInfo] = msgspec.field(default_factory=list)
+    apart_s: float = 0.0  # the work the specifications keep apart, once the run is done (controller/exclusions.py)
+    apart: list[str] = msgspec.field(default_factory=list)  # whose work that is
 
 
 class StatusMessage(Message, kw_only=True):

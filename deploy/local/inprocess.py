@@ -21,7 +21,7 @@ from common.model import Duration, Model, OperationState
 from common.model.durations import as_duration
 from common.resources import durations_of
 from common.wire.ctl import NoPlanFound, PlanFound
-from controller.cycle import CycleReport, effect_seconds
+from controller.cycle import CycleReport, effect_seconds, shortest_seconds
 from controller.loop import ControlLoop
 from controller.planner import Budget
 from controller.planner.policy import VIRTUAL_BUDGET
@@ -94,7 +94,7 @@ def run_in_process(
     core = stack.control_core(clock, budget=budget, execution=execution)
     table = durations_of(model, {r: as_duration(d) for r, d in (delays or {}).items()})
     loop = ControlLoop(core, RunRecorder(core, clock, recording), (r.name for r in model.resources), clock,
-                       effect_seconds(model, delays), table.keyed())
+                       effect_seconds(model, delays), table.keyed(), shortest_seconds(model, delays))
     flow = None
     if production is None:
         loop.request([op.name for op in model.operations])
@@ -165,7 +165,7 @@ def run_in_process(
             reason = f"time limit of {time_limit} emulated seconds reached"
             break
     loop.finish(outcome, reason)
-    cycle = loop.cycle_report()
+    cycle = loop.cycle_report(final=True)
     for line in cycle.lines():
         say(line)
     throughput = None if flow is None else flow.run_figures()

@@ -233,7 +233,7 @@ def cycle_lines(cycle: CycleInfo | None) -> list[str]:
     first = Bound(cycle.bound_s, cycle.chain_s, cycle.busiest, cycle.busiest_work_s)
     idle = tuple(ResourceIdle(r.resource, r.idle_s, tuple(r.waits)) for r in cycle.idle)
     return CycleReport(cycle.cycle_s, cycle.bound_s, cycle.predicted_s, idle, first, cycle.busiest,
-                       cycle.busiest_work_s, cycle.chain_s).lines()
+                       cycle.busiest_work_s, cycle.chain_s, cycle.apart_s, tuple(cycle.apart)).lines()
 
 
 def chaos_plan(options: Options, children: list[Child], model: Model) -> ChaosPlan | None:
