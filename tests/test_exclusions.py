@@ -3,9 +3,6 @@ of small stations, and on the reference station at the issue's durations."""
 
 from __future__ import annotations
 
-import heapq
-import itertools
-
 import pytest
 
 from common.model import (
@@ -20,12 +17,12 @@ from common.model import (
     operation,
     parse_predicate,
 )
-from common.model.compiled import CompiledModel, State
 from common.stations import load_model
 from controller.deorder import Execution
 from controller.exclusions import UNKNOWN, RunLog, exclusion_bound, partly
 from controller.stack import build_controller_stack
 from deploy.local.inprocess import run_in_process
+from tests.test_causal_chain import fastest_schedule
 
 SECONDS = {"x": 2.0, "y": 3.0, "z": 0.5}
 ISSUE_DELAYS = {"human": 20.0, "ur": 1.5, "nr": 2.0}  # issue 21: operator 20 s, ur 1.5 s, nr 2 s
@@ -53,41 +50,6 @@ def pair(guarded_by_z: bool = False) -> Model:
     goal = "x.on_m && y.on_m" + (" && !z.on_m" if guarded_by_z else "")
     return Model("pair", resources, operations=(operation("AllDone", "!x.on_m", goal),),
                  specifications=(forbid("not_both_switching", both, "x and y never switch at once"),))
-
-
-def fastest_schedule(compiled: CompiledModel, goal: str, seconds: dict[str, float]) -> float:
-    """Every timed execution, explored: a command fires at any moment its whole guard (the supervisor's part
-    included) holds, an effect happens its duration after its guard came to hold and stayed, no state is
-    forbidden. The earliest time the goal holds."""
-    reached = compiled.predicate(parse_predicate(goal))
-    counter = itertools.count()
-    Node = tuple[float, int, State, tuple[tuple[str, float], ...]]
-    queue: list[Node] = [(0.0, next(counter), compiled.initial(), ())]
-    seen: set[tuple[State, tuple[tuple[str, float], ...]]] = set()
-    while queue:
-        now, _, state, due = heapq.heappop(queue)
-        if reached(state):
-            return now
-        if (state, due) in seen:
-            continue
-        seen.add((state, due))
-        for command_ in compiled.deliberate:
-            if command_.guard(state):
-                after = command_.outcomes[0](state)
-                heapq.heappush(queue, (now, next(counter), after, timers(compiled, after, due, now, seconds)))
-        if due:
-            name, at = min(due, key=lambda d: d[1])
-            after = compiled.by_name[name].outcomes[0](state)
-            rest = tuple(d for d in due if d[0] != name)
-            heapq.heappush(queue, (at, next(counter), after, timers(compiled, after, rest, at, seconds)))
-    raise AssertionError(f"{goal} is never reached")
-
-
-def timers(compiled: CompiledModel, state: State, due: tuple[tuple[str, float], ...], now: float,
-           seconds: dict[str, float]) -> tuple[tuple[str, float], ...]:
-    running = dict(due)
-    return tuple(sorted((e.name, running.get(e.name, now + seconds[e.name])) for e in compiled.effects
-                        if e.guard(state)))
 
 
 def effect_seconds(model: Model) -> dict[str, float]:
