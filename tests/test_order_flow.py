@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -150,29 +150,36 @@ async def _client(config: Path, lines: list[str]) -> list[str]:
     while not any("started" in line for line in lines):
         await asyncio.sleep(0.2)
     seen = []
-    async with ZenohBus(watcher_zenoh_config(station, model, int(port), None)) as bus:
-        added = await _add_once(bus, station.keys)
-        seen.append(f"added {[o.id for o in added.orders]}")
+
+    def session() -> ZenohBus:
+        return ZenohBus(watcher_zenoh_config(station, model, int(port), None))
+
+    added = await _add_once(session, station.keys)
+    seen.append(f"added {[o.id for o in added.orders]}")
+    async with session() as bus:
         cancelled = await ask_orders(bus, station.keys, OrdersRequest(action=OrdersAction.CANCEL,
                                                                       order=added.orders[-1].id), timeout=10.0)
-        assert cancelled.accepted and cancelled.orders[0].state is OrderState.CANCELLED, cancelled.reason
-        seen.append(f"cancelled {added.orders[-1].id}")
+    assert cancelled.accepted and cancelled.orders[0].state is OrderState.CANCELLED, cancelled.reason
+    seen.append(f"cancelled {added.orders[-1].id}")
     return seen
 
 
 MES = "test MES"
 
 
-async def _add_once(bus: ZenohBus, keys: Keys) -> OrdersReply:
+async def _add_once(session: Callable[[], ZenohBus], keys: Keys) -> OrdersReply:
     """Two light orders, added once although the controller may be down (`--chaos` kills it) when asked: an
-    unanswered request may still have been applied, so the orders are looked for before asking again."""
+    unanswered request may still have been applied, so the orders are looked for before asking again. Each
+    attempt on a session of its own, as an MES reconnects: once, under the suite's load, no request of a first
+    session reached the controller in two minutes."""
     for _attempt in range(12):
-        added = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.ADD, variant="light", count=2,
-                                                          origin=MES), timeout=10.0)
-        if added.accepted:
-            return added
-        listed = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.LIST, include_finished=True),
-                                  timeout=10.0)
+        async with session() as bus:
+            added = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.ADD, variant="light", count=2,
+                                                              origin=MES), timeout=10.0)
+            if added.accepted:
+                return added
+            listed = await ask_orders(bus, keys, OrdersRequest(action=OrdersAction.LIST, include_finished=True),
+                                      timeout=10.0)
         mine = [o for o in listed.orders if o.origin == MES]
         if mine:
             return OrdersReply(accepted=True, orders=mine)
