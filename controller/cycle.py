@@ -32,7 +32,7 @@ Durations come from `effect_seconds` and `shortest_seconds`, the one place they 
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from common.model import Model, TransitionKind, parse_predicate
@@ -40,7 +40,7 @@ from common.model.compiled import CompiledModel
 from common.model.durations import Duration, effect_delays, effect_owner, effect_shortest
 
 from .deorder import Ordering
-from .exclusions import ExclusionBound, Exclusions
+from .exclusions import ExclusionBound
 from .planner import Plan
 
 
@@ -192,9 +192,10 @@ class CycleRecord:
     """A run's plans' predictions and each resource's busy spans, as the loop saw them: a resource is busy
     from a command sent to it until the last change measured on it before the next command."""
 
-    def __init__(self, resources: Sequence[str], exclusions: Exclusions | None = None) -> None:
-        """`exclusions`: the run's log of transitions, for the bound from the specifications' exclusions, worked out
-        only for a final report (`report(final=True)`)."""
+    def __init__(self, resources: Sequence[str],
+                 exclusions: Callable[[], ExclusionBound | None] | None = None) -> None:
+        """`exclusions`: works out the bound from the specifications' exclusions over the run's log of transitions
+        (controller/exclusions.py), asked only for a final report (`report(final=True)`)."""
         self.resources = list(resources)
         self.exclusions = exclusions
         self._apart: tuple[float, ExclusionBound | None] | None = None  # the end it was worked out for, and it
@@ -260,13 +261,13 @@ class CycleRecord:
 
     def report(self, end: float, *, final: bool = False) -> CycleReport:
         """`final`: the run (or the order) is done: the bound takes in the specifications' exclusions (a second's
-        work on a long run, kept until the log grows)."""
+        work on a long run, done once for each end)."""
         apart: ExclusionBound | None = None
         if final and self.exclusions is not None:
             # Once per end: a finished station's statuses keep asking, and the log may still grow a little
             # (a camera, a hub's noise) without the run going on.
             if self._apart is None or self._apart[0] != end:
-                self._apart = (end, self.exclusions.bound())
+                self._apart = (end, self.exclusions())
             apart = self._apart[1]
         idle = []
         for r in self.resources:

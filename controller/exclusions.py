@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 from common.model import TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
+from common.model.durations import effect_owner
 from common.model.predicates import And, Const, Eq, In, IsTrue, Ne, Not, Or, Predicate, Ref
 
 MAX_EVENTS = 6_000  # transitions in one window (a reference cycle has about 500)
@@ -111,7 +112,6 @@ class RunLog:
 
     def restart(self, start: State) -> None:
         """A new window from `start` (a station running orders: each order its own)."""
-        self.generation = getattr(self, "generation", -1) + 1
         self.start = tuple(start)
         self.state = list(start)
         self.events: list[Happened] = []
@@ -169,8 +169,6 @@ class _Order:
         events = log.events
         n = len(events)
         self.before_state: list[State] = []
-        self.reads: list[tuple[int, ...]] = []
-        self.cause: list[dict[int, int]] = []  # per event: variable -> event it read it from (-1: the start)
         self.readers: dict[tuple[int, int], list[int]] = {}  # (writer, variable) -> events reading it from there
         self.ancestors: list[int] = [0] * n  # bit sets
         self.writers: dict[int, list[int]] = {}  # variable -> the events writing it, in order
@@ -185,9 +183,7 @@ class _Order:
             self.before_state.append(tuple(state))
             t = event.transition
             reads = () if t is None else tuple(compiled.index[p] for p in t.source.read())
-            self.reads.append(reads)
-            cause = {v: last.get(v, -1) for v in reads}
-            self.cause.append(cause)
+            cause = {v: last.get(v, -1) for v in reads}  # variable -> event it read it from (-1: the start)
             ancestors = 0
             for w in set(cause.values()):
                 if w >= 0:
@@ -248,20 +244,6 @@ class _Order:
         return reach.get(end, 0.0)
 
 
-class Exclusions:
-    """A log's bound, worked out when asked (it takes a second on a long window) and kept until the log grows."""
-
-    def __init__(self, compiled: CompiledModel, log: RunLog, seconds: Mapping[str, float]) -> None:
-        self.compiled, self.log, self.seconds = compiled, log, seconds
-        self._kept: tuple[tuple[int, int], ExclusionBound | None] | None = None
-
-    def bound(self) -> ExclusionBound | None:
-        key = (self.log.generation, len(self.log.events))
-        if self._kept is None or self._kept[0] != key:
-            self._kept = (key, exclusion_bound(self.compiled, self.log, self.seconds))
-        return self._kept[1]
-
-
 def exclusion_bound(compiled: CompiledModel, log: RunLog, seconds: Mapping[str, float]) -> ExclusionBound | None:
     """The window's bound from the work the supervisor keeps apart (module docstring); None without a log."""
     if log.overflowed or not log.events:
@@ -274,10 +256,8 @@ def exclusion_bound(compiled: CompiledModel, log: RunLog, seconds: Mapping[str, 
 
 
 def _owner(transition: CompiledTransition | None) -> str | None:
-    if transition is None:
-        return None
-    written = sorted(transition.source.written())
-    return written[0].split(".", 1)[0] if written else None
+    """The resource whose variables the transition writes (as `effect_owner` says for effects)."""
+    return effect_owner(transition.source) if transition is not None and transition.source.written() else None
 
 
 def _is_command(event: Happened) -> bool:

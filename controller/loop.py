@@ -53,7 +53,7 @@ from .cycle import (
     step_seconds,
 )
 from .engine import PlanProgress, TickResult
-from .exclusions import Exclusions, RunLog
+from .exclusions import RunLog, exclusion_bound
 from .outbox import Command, CommandVariable, Outbox
 from .planner import NoPlan, Plan
 from .planner.plans import Execution
@@ -110,7 +110,7 @@ class ControlLoop:
                          {name: min(s, self.seconds.get(name, s)) for name, s in model_shortest.items()})
         self.run_log = RunLog(core.compiled, core.state)
         self.cycle = CycleRecord([r.name for r in core.model.resources],
-                                 Exclusions(core.compiled, self.run_log, self.shortest))
+                                 lambda: exclusion_bound(core.compiled, self.run_log, self.shortest))
         self.settle = ProductSettle(core.compiled, self.seconds, core.clock)
         self._counted_plan: PlanProgress | None = None  # the plan whose effects seen happen are counted as work
         self._counted_steps: set[int] = set()
