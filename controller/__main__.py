@@ -1,8 +1,8 @@
 """`python -m controller --config hubs.toml`: the controller process (controller/main.py)."""
 
-import sys
 
+from common.plumbing.lifecycle import exit_process
 from controller.main import main
 
 if __name__ == "__main__":  # not when the planner's spawned process re-imports the main module
-    sys.exit(main())
+    exit_process(main())

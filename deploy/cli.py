@@ -15,7 +15,7 @@ from common.config.modes import DEFAULT_EXECUTION, DeviceMode, Execution, argume
 from common.config.production import ProductionConfig, ProductionError, plan_from_options
 from common.model import DurationTable, Model, ParseError, TransitionKind, parse_predicate
 from common.model.durations import DurationSource, effect_owner
-from common.plumbing.lifecycle import EXPECTED_ERRORS, one_line, positive
+from common.plumbing.lifecycle import EXPECTED_ERRORS, exit_process, one_line, positive
 from common.stations import DEFAULT_MODEL, load_model
 from controller import main as controller_process
 from hubs import main as hub_process
@@ -418,5 +418,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise
 
 
+def run() -> None:
+    """The `hubctl` console script: `main`, then leave as every zenoh process must (`exit_process`)."""
+    exit_process(main())
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

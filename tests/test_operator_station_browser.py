@@ -106,7 +106,7 @@ def hubctl_up(config: Path, directory: Path) -> Iterator[Up]:
     """`hubctl up --real human` in `directory` (its var/up/ there); Ctrl-C'd if it is still running at the end."""
     output = directory / "up.out"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-    argv = [sys.executable, "-c", "import sys; from deploy.cli import main; sys.exit(main())", "up",
+    argv = [sys.executable, "-c", "from deploy.cli import run; run()", "up",
             "--config", str(config), "--real", "human", "--speed", str(SPEED), "--time-limit", str(RUN_LIMIT_S)]
     with output.open("wb") as handle:
         process = subprocess.Popen(argv, cwd=directory, env=env, stdout=handle, stderr=subprocess.STDOUT,

@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import atexit
 import faulthandler
 import logging
+import os
 import random
 import signal
 import socket
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 from common.config.hubs_toml import ConfigError, NetworkConfig, StationConfig
 from common.config.security import SecurityError
@@ -123,6 +126,23 @@ def run_main(prog: str, body: Callable[[], int],
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def exit_process(code: int | None) -> NoReturn:
+    """Leave a process that has used zenoh with `code`: exit handlers run and output is flushed, then the
+    process ends without the interpreter's teardown. A thread of zenoh's runtime that calls into Python
+    while the interpreter tears down is ended by a forced unwind its Rust frames catch, and glibc aborts
+    the process ("FATAL: exception not rethrown", status -6) after it has said and done everything:
+    `hubctl test` reported its failing hub and then died of SIGABRT instead of exiting 1."""
+    code = int(code or 0)
+    try:
+        atexit._run_exitfuncs()
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BrokenPipeError:  # the reader went away; the status still counts
+        pass
+    os._exit(code)
 
 
 def one_line(exc: BaseException) -> str:

@@ -1,5 +1,4 @@
-import sys
-
+from common.plumbing.lifecycle import exit_process
 from controller.overview.main import main
 
-sys.exit(main())
+exit_process(main())

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from common.config.modes import NetworkMode
 from common.config.overview import BindAddress, parse_bind
-from common.plumbing.lifecycle import EXPECTED_ERRORS, run_main, setup_logging, stop_on_signals
+from common.plumbing.lifecycle import EXPECTED_ERRORS, exit_process, run_main, setup_logging, stop_on_signals
 
 log = logging.getLogger("statehub.overview")
 
@@ -112,4 +112,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())

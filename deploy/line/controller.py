@@ -24,7 +24,7 @@ from common.config.hubs_toml import load_config
 from common.config.modes import NetworkMode
 from common.config.security import SecurityError
 from common.line.config import LineConfig, load_line
-from common.plumbing.lifecycle import setup_logging, stop_on_signals
+from common.plumbing.lifecycle import exit_process, setup_logging, stop_on_signals
 from common.plumbing.sdnotify import Notifier
 from common.wire.keys import Keys
 from common.wire.messages import MessageError, decode, encode
@@ -149,4 +149,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())

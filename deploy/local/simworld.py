@@ -53,6 +53,7 @@ from common.bus.zenoh_bus import ZenohBus
 from common.config.hubs_toml import DeviceConfig, StationConfig, load_station
 from common.config.modes import DeviceMode
 from common.model import Model
+from common.plumbing.lifecycle import exit_process
 from common.plumbing.tasks import cancel_and_wait
 from common.wire.keys import Keys
 from common.wire.messages import Codec
@@ -409,4 +410,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 from common.config.hubs_toml import ConfigError, StationConfig, load_config, load_station
 from common.config.modes import DeviceMode, NetworkMode
 from common.model import Model, ModelError
+from common.plumbing.lifecycle import exit_process
 from common.stations import ModelLoadError, load_model
 
 if TYPE_CHECKING:
@@ -293,4 +294,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())

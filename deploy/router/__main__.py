@@ -1,5 +1,6 @@
-import sys
+
+from common.plumbing.lifecycle import exit_process
 
 from .main import main
 
-sys.exit(main())
+exit_process(main())
