@@ -20,6 +20,7 @@ from common.config.modes import DEFAULT_EXECUTION, Execution
 from common.model import RUNNING, Kind, OperationState, Predicate, Value
 from common.model.compiled import CompiledModel, State
 from common.wire.ctl import (
+    FasterPlan,
     Livelock,
     NoPlanFound,
     PlanFound,
@@ -40,6 +41,16 @@ from .planner.policy import RETRY_FIRST_S, RETRY_MAX_S, live_budget, solve_goals
 from .safety import SafetyMonitor
 
 AT_START = ReplanCause(ReplanReason.START)
+# How much sooner a plan of as many steps must be predicted to end to replace the rest under way: the prediction
+# counts each effect at its longest, and a switch for less than its own error is churn.
+FASTER_BY = 0.01
+
+
+class FinishEstimate(Protocol):
+    """The predicted seconds a plan's steps not in `done` take from now (controller/cycle.py)."""
+
+    def __call__(self, plan: Plan, done: frozenset[int]) -> float: ...
+
 
 
 class InputListener(Protocol):
@@ -390,28 +401,40 @@ class ControlCore:
         # What last set each device going is kept from plan to plan, so that a lost effect names its cause.
         self.progress = PlanProgress(self.compiled, plan, self._sent, self.engine.execution)
 
-    def improve(self, request: PlanRequest, better: Plan) -> bool:
-        """A shorter plan for the request whose plan is under way (the portfolio kept searching): taken
-        only while it is still valid from the measured state, and shorter than what is left to do."""
+    def improve(self, request: PlanRequest, better: Plan, finish: FinishEstimate | None = None) -> bool:
+        """A better plan for the request whose plan is under way (the portfolio kept searching): taken only while
+        it is still valid from the measured state, and then only if the rest of it from there is shorter than
+        what is left to do or, with `finish` (the predicted time a plan's steps not yet done take), no longer and
+        faster by `FASTER_BY` at least."""
         progress = self.progress
         if (progress is None or self.planning or request.generation != self.generation
                 or self.need_plan_reason is not None or set(progress.plan.goals) != set(better.goals)):
             return False
         left = sum(1 for _ in progress.pending())
+        left_s = finish(progress.plan, frozenset(progress.done)) if finish is not None else None
         skip = set(self.op_index.values())  # operation states move on beside any plan
         here = tuple(v for i, v in enumerate(self.state) if i not in skip)
         for j, state in enumerate(better.states[:-1]):
-            if len(better.steps) - j >= left:
-                break
+            steps = len(better.steps) - j
+            if steps > left or (steps == left and left_s is None):
+                continue
             if tuple(v for i, v in enumerate(state) if i not in skip) != here:
                 continue
             goals = {name: self.model.operation_by_name[name].goal for name in better.goals}
             kept = self.planner.revalidate(self.state, better.steps[j:], goals, self.disabled)
             if kept is None:
                 continue
-            self._follow(kept)
-            self.events.log.emit(ShorterPlan(len(kept.steps), left, better.stats.method))
-            return True
+            if len(kept.steps) < left:
+                self._follow(kept)
+                self.events.log.emit(ShorterPlan(len(kept.steps), left, better.stats.method))
+                return True
+            assert finish is not None and left_s is not None
+            kept_s = finish(kept, frozenset())
+            if kept_s < left_s * (1.0 - FASTER_BY):
+                self._follow(kept)
+                self.events.log.emit(FasterPlan(len(kept.steps), round(kept_s, 3), round(left_s, 3),
+                                                better.stats.method))
+                return True
         return False
 
     # --- the operator's interventions (controller/requests.py checks them first) ------------

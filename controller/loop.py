@@ -42,7 +42,7 @@ from controller.recording.hooks import ALL_HEALTHY, RunRecorder
 from controller.recording.schema import HubState
 
 from .causal_chain import CausalChain
-from .control import ControlCore, PlanRequest
+from .control import ControlCore, FinishEstimate, PlanRequest
 from .cycle import (
     CycleRecord,
     CycleReport,
@@ -52,6 +52,7 @@ from .cycle import (
     shortest_seconds,
     step_seconds,
 )
+from .deorder import order
 from .engine import PlanProgress, TickResult
 from .exclusions import RunLog, exclusion_bound
 from .outbox import Command, CommandVariable, Outbox
@@ -63,6 +64,7 @@ from .production.settle import ProductSettle
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
+from .retime import retime_plan
 from .timed_check import STRICTEST, Revalidate, TimedCheck, TimingRefusal, Verdict, learn_race, revalidation
 
 NOT_HELD: frozenset[str] = frozenset()
@@ -262,14 +264,14 @@ class ControlLoop:
         return Adopted(taken, log.since(cursor).events)
 
     def improve(self, request: PlanRequest, better: Plan) -> bool:
-        """A shorter plan for `request`, after its first answer; True if taken: only one the engine's own order
-        follows at every timing (a kept rest of it runs in the order of the plan under way)."""
+        """A shorter or faster plan for `request`, after its first answer; True if taken: only one the engine's own
+        order follows at every timing (a kept rest of it runs in the order of the plan under way)."""
         refused = self._refusal(request, better, self.core.engine.execution)
         if refused is not None:
             self.refusals.append(refused)
             self.recorder.plan(request, better, taken=False, improvement=True)
             return False
-        taken = self.core.improve(request, better)
+        taken = self.core.improve(request, better, self._finish_estimate())
         self.recorder.plan(request, better, taken=taken, improvement=True)
         if taken:
             self._estimate()
@@ -331,10 +333,42 @@ class ControlLoop:
             if not isinstance(result, Plan):
                 break
             checked, refused = self._in_time(request, result)
-            if refused is None or not self._learn(refused, request):
+            if refused is None:
+                return self.adopt(request, self._faster(request, checked), checked=True)
+            if not self._learn(refused, request):
                 return self.adopt(request, checked, checked=True)
             result = self._solve(request, learnt=True)
         return self.adopt(request, result)
+
+    def _finish_estimate(self) -> FinishEstimate:
+        """How long a plan's steps not yet done take from now, each effect at its longest, in the order the engine
+        runs it: its own, else that of the plan under way (which a rest taken from another plan keeps)."""
+        compiled, own = self.core.compiled, self.core.engine.execution
+        progress = self.core.progress
+        running = progress.plan.execution if progress is not None else None
+
+        def finish(plan: Plan, done: frozenset[int]) -> float:
+            durations = step_seconds(compiled, plan, self.seconds)
+            left = [0.0 if j in done else seconds for j, seconds in enumerate(durations)]
+            return predicted_finish(order(compiled, plan, plan.execution or running or own), left)
+
+        return finish
+
+    def _faster(self, request: PlanRequest, plan: Plan) -> Plan:
+        """The same steps in an order the engine finishes sooner (controller/retime.py), if one is found that runs
+        in the engine's own order at every timing of its effects (controller/timed_check.py); else `plan`."""
+        if plan.execution is not None:  # it runs in a stricter order than the one the finish is predicted in
+            return plan
+        found = retime_plan(self.core.planner, self.core.compiled, plan, request, self.seconds,
+                            self.core.engine.execution, self.core.budget.retime_tries)
+        if found is None:
+            return plan
+        if self.timed is not None:
+            verdict = self.timed.verdict(found.plan, request.disabled, self._revalidation(request, found.plan),
+                                         own=self.core.engine.execution)
+            if verdict.refusals:
+                return plan
+        return found.plan
 
     def _solve(self, request: PlanRequest, *, learnt: bool) -> Plan | NoPlan | None:
         """`learnt`: with races learnt, a shorter search: where none but a plan losing a race exists, a whole

@@ -71,7 +71,7 @@ class PlanClient:
                         self._adopt(request, answer.result, answer.note)
                         first_answered.set()
                     elif isinstance(answer.result, Plan) and self.loop.improve(request, answer.result):
-                        log.info("shorter plan taken: %d steps (%s)", len(answer.result.steps),
+                        log.info("better plan taken: %d steps (%s)", len(answer.result.steps),
                                  answer.result.stats.method)
                         self.wake()
             else:

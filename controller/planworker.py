@@ -4,7 +4,8 @@ A search is pure Python and holds the GIL: in a thread it would starve the tick 
 and the state ingestion (hubs would look stale while the controller plans). The worker
 builds the same model, supervisor and planner once, keeps its caches warm across
 requests, and streams its answers to each request: the first valid plan as soon as the
-satisficing member has one, then each shorter plan the portfolio finds.
+satisficing member has one, then each shorter plan the portfolio finds, and last the best of them in an order the
+engine finishes sooner, if the member that improves plans by time finds one (controller/retime.py).
 
 A newer request preempts the improvement of an older one: the searches and the table builders
 look at the request pipe as they go (`preemption.py`) and end at their next safe point, keeping
@@ -41,8 +42,18 @@ from common.wire.ctl import PlannedAlone
 from .control import PlanRequest
 from .deorder import Execution
 from .planner import NoPlan, Plan, Planner
-from .planner.policy import FIRST_ANSWER_S, HOLD_S, IMPROVE_S, anytime_answers, live_budget, solve_goals
+from .planner.policy import (
+    FIRST_ANSWER_S,
+    HOLD_S,
+    IMPROVE_S,
+    RETIME_LIVE_TRIES,
+    RETIME_S,
+    anytime_answers,
+    live_budget,
+    solve_goals,
+)
 from .preemption import NewerRequest
+from .retime import longest_seconds, retime_plan
 from .timed_check import STRICTEST, CheckStopped, TimedCheck, Verdict, learn_race, revalidation
 
 log = logging.getLogger(__name__)
@@ -57,6 +68,7 @@ class Limits:
     first_seconds: float = FIRST_ANSWER_S
     improve_seconds: float = IMPROVE_S
     hold_seconds: float = HOLD_S
+    retime_seconds: float = RETIME_S  # then the member that improves the best plan by time (0: none)
 
 
 @dataclass(frozen=True)
@@ -86,6 +98,27 @@ class InTime:
         self.planner = planner
         self.check = TimedCheck(planner.compiled, timing.durations, timing.execution)
         self.goals = {name: op.goal for name, op in model.operation_by_name.items()}
+        self.execution = timing.execution
+        self.seconds = longest_seconds(planner.compiled, timing.durations)
+
+    def faster(self, plan: Plan, request: PlanRequest, requests: Connection, seconds: float) -> Plan | None:
+        """The plan's steps in an order the engine finishes sooner (controller/retime.py) that its own order follows
+        at every timing, found within `seconds`; None if there is none. Raises `CheckStopped` when a newer request
+        waits."""
+        if seconds <= 0 or plan.execution is not None:
+            return None
+        found = retime_plan(self.planner, self.planner.compiled, plan, request, self.seconds, self.execution,
+                            RETIME_LIVE_TRIES, deadline=time.perf_counter() + seconds, stop=requests.poll)
+        if found is None:
+            if requests.poll():
+                raise CheckStopped
+            return None
+        verdict = self.verdict(found.plan, request, requests, stricter=False)
+        if not verdict.passed:  # in the engine's own order: a faster plan is no gain if it needs a stricter one
+            return None
+        log.info("plan retimed: %d steps predicted to end in %.1f s instead of %.1f s (%d orders tried)",
+                 len(found.plan.steps), found.after_s, found.before_s, found.tried)
+        return verdict.plan
 
     def verdict(self, plan: Plan, request: PlanRequest, requests: Connection, *, stricter: bool) -> Verdict:
         """Raises `CheckStopped` when a newer request waits."""
@@ -118,6 +151,7 @@ def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Co
                          leftovers=leftovers)
     found = anytime_answers(planner, request, budget)
     first = True
+    best: Plan | None = None  # the last plan the portfolio found
     try:
         for plan, note in found:
             if in_time is None:
@@ -128,12 +162,19 @@ def _answer(planner: Planner, request: PlanRequest, limits: Limits, requests: Co
                 verdict = in_time.verdict(plan, request, requests, stricter=False)
                 if verdict.passed:  # a shorter plan is no gain if it needs a stricter order
                     answers.send(Answer(request.generation, verdict.plan, note))
+            best = plan if isinstance(plan, Plan) else best
             first = False
             newer.arm()
             graveyard.clear()
             if requests.poll():
                 return True
-        return newer.stopped
+        if newer.stopped:
+            return True
+        if in_time is not None and best is not None:
+            faster = in_time.faster(best, request, requests, limits.retime_seconds)
+            if faster is not None:
+                answers.send(Answer(request.generation, faster))
+        return False
     except CheckStopped:
         return True
     finally:

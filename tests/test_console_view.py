@@ -11,6 +11,7 @@ from common.model import Kind, OperationState
 from common.wire.ctl import (
     ConsoleEvent,
     ControllerChanged,
+    FasterPlan,
     ForbiddenState,
     ForbiddenStateCleared,
     HoldReleased,
@@ -91,6 +92,8 @@ EVENT_LINES: list[tuple[ConsoleEvent, str, str]] = [
     (PlanKept(3, ReplanCause(ReplanReason.LEFT_PLAN, "cam.zone_m is 'robot', expected 'none'")),
      "plan kept: 3 steps still reach the goals (the state left the plan: cam.zone_m is 'robot', expected 'none')", ""),
     (ShorterPlan(12, 15, "astar"), "shorter plan taken: 12 steps left instead of 15 (astar)", ""),
+    (FasterPlan(11, 8.0, 11.0, "astar, retimed"),
+     "faster plan taken: 11 steps predicted to take 8.0 s instead of 11.0 s (astar, retimed)", ""),
     (PlannedAlone("RobotHome", 3, "expansion limit"),
      "planned RobotHome alone: 3 goals together were not solved within the budget (expansion limit)", ""),
     (NoPlanFound(["LampOn", "LampOff"], True, "forbidden"), "no plan (unreachable) for LampOn, LampOff: forbidden",

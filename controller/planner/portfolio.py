@@ -46,6 +46,7 @@ from .validate import PlanInvalid
 
 ELIMINATION_FIRST = 4_000  # steps simulated while taking detours out of a first plan (about 40 ms)
 ELIMINATION_MORE = 100_000  # and again, before A*, when there is time to improve it
+RETIME_TRIES = 64  # sequences the member improving a plan by time checks: tens of ms on a plan of dozens of steps
 AGENDA_FROM = 2  # goals from which the satisficing member first tries them one after another
 
 
@@ -59,7 +60,9 @@ class Budget:
     (None: no clock, only counts — virtual time); `hold_seconds`: how long the first answer may
     wait for a warm A* to return a shortest plan instead; `stop`: a newer request is waiting
     (the run ends at its next safe point); `leftovers`: where A* stopped by `stop` leaves its
-    tables, for the owner to free when it has time (freeing them is not instant).
+    tables, for the owner to free when it has time (freeing them is not instant). `retime_tries`: sequences
+    the member that improves a plan by time checks (controller/retime.py; 0: none), run by the controller, which
+    knows the durations and its engine's order.
     """
 
     first_expansions: int = 20_000
@@ -70,6 +73,7 @@ class Budget:
     hold_seconds: float | None = None
     stop: StopTest | None = None
     leftovers: list[object] | None = None
+    retime_tries: int = RETIME_TRIES
 
 
 class PlannerTables(Protocol):

@@ -68,8 +68,8 @@ from .orders import ORDER_EVENTS, RECORDS_READ, replay_flow
 DECISIONS = frozenset({RecordKind.COMMAND, RecordKind.OPERATION, RecordKind.PLAN_REQUEST, RecordKind.PLAN,
                        RecordKind.EVENT})
 # The event log's entries the core decides; the others are the service's notes (hub alive, mirrors missing).
-CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "no_plan", "plan_found", "request", "forbidden_state",
-                         "forbidden_state_cleared", *ORDER_EVENTS})
+CORE_EVENTS = frozenset({"replan", "plan_kept", "shorter_plan", "faster_plan", "no_plan", "plan_found", "request",
+                         "forbidden_state", "forbidden_state_cleared", *ORDER_EVENTS})
 # The engine's own order of a run recorded before `[controller] execution` existed (RunMeta.execution None).
 EXECUTION_BEFORE_THE_SETTING = Execution.TRACE
 

@@ -1,0 +1,169 @@
+"""The portfolio's member that improves plans by time (controller/retime.py), on a robot with two jobs and an operator
+who needs the second of them (tests/timing_stations/two_jobs.py). Both orders of the robot's jobs are shortest plans;
+only one lets the operator work beside the robot's other job, and that is the one the member and the controller take,
+in process and over Zenoh."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import pytest
+
+from common.model import Model
+from common.model.compiled import CompiledModel, State
+from common.model.predicates import Predicate
+from controller.control import PlanRequest
+from controller.cycle import predicted_finish, step_seconds
+from controller.deorder import Execution, order
+from controller.planner import Plan, Planner
+from controller.planner.plans import PlanStep
+from controller.planner.policy import VIRTUAL_BUDGET
+from controller.recording.writer import RECORDING_DIR_ENV
+from controller.retime import retime, retime_plan
+from controller.stack import build_controller_stack
+from deploy.local.inprocess import run_in_process
+from deploy.local.station import Options, run_station
+from tests.test_causal_chain import fastest_schedule
+from tests.timing_stations.two_jobs import OPERATOR_S, ROBOT_S, build_model, goal
+
+ROOT = Path(__file__).resolve().parent.parent
+TWO_JOBS = ROOT / "tests" / "timing_stations" / "two_jobs.toml"
+GOAL = goal()
+A_FIRST = ("r.do_a.enabled", "r.do_a.executing.effect", "r.do_a.done", "r.do_b.enabled", "r.do_b.executing.effect",
+           "r.do_b.done", "o.work.enabled", "o.work.executing.effect")
+
+
+def seconds(model: Model) -> dict[str, float]:
+    return {t.name: ROBOT_S if t.name.startswith("r.") else OPERATOR_S
+            for t in model.ability_transitions if t.kind.value == "effect"}
+
+
+def test_the_robots_jobs_are_swapped_so_that_the_operator_works_beside_the_other() -> None:
+    model = build_model()
+    stack = build_controller_stack(model)
+    compiled, planner = stack.compiled, stack.planner
+    goals = {"Work": compiled.model.operation_by_name["Work"].goal}
+    start = compiled.initial()
+    slow = planner.revalidate(start, _steps(planner, start, A_FIRST, goals), goals)
+    assert slow is not None
+    durations = seconds(model)
+    assert _finish(compiled, slow, durations) == 2 * ROBOT_S + OPERATOR_S  # the operator waits for both jobs
+
+    found = retime(compiled, slow, durations, Execution.PARTIAL_ORDER,
+                   lambda state, steps: planner.revalidate(state, steps, goals))
+    assert found is not None
+    assert (found.before_s, found.after_s) == (11.0, 8.0)
+    assert [s.transition for s in found.plan.steps][:3] == ["r.do_b.enabled", "r.do_b.executing.effect",
+                                                          "r.do_b.done"]
+    assert len(found.plan.steps) == len(slow.steps) and found.plan.goals == slow.goals
+    assert "retimed" in found.plan.stats.method
+    assert _finish(compiled, found.plan, durations) == fastest_schedule(compiled, GOAL, durations) == 8.0
+
+    # in a strict sequence the order changes nothing, and a plan already fastest is left alone
+    assert retime(compiled, slow, durations, Execution.SEQUENCE,
+                  lambda state, steps: planner.revalidate(state, steps, goals)) is None
+    assert retime(compiled, found.plan, durations, Execution.PARTIAL_ORDER,
+                  lambda state, steps: planner.revalidate(state, steps, goals)) is None
+
+
+def test_every_order_the_member_tries_is_checked_by_the_planner() -> None:
+    """With the planner's check refusing every new order, nothing comes back: the member never hands out a
+    sequence the engine's semantics have not accepted."""
+    model = build_model()
+    stack = build_controller_stack(model)
+    compiled, planner = stack.compiled, stack.planner
+    goals = {"Work": compiled.model.operation_by_name["Work"].goal}
+    start = compiled.initial()
+    slow = planner.revalidate(start, _steps(planner, start, A_FIRST, goals), goals)
+    assert slow is not None
+    checked: list[tuple[str, ...]] = []
+
+    def refuse(_state: State, steps: Sequence[PlanStep]) -> Plan | None:
+        checked.append(tuple(s.transition for s in steps))
+        return None
+
+    assert retime(compiled, slow, seconds(model), Execution.PARTIAL_ORDER, refuse) is None
+    assert checked and all(sorted(c) == sorted(A_FIRST) for c in checked)
+    request = PlanRequest(1, start, goals, frozenset())
+    assert retime_plan(planner, compiled, slow, request, seconds(model), Execution.PARTIAL_ORDER, tries=0) is None
+
+
+def test_the_controller_runs_the_faster_order_and_ends_at_the_fastest_schedule() -> None:
+    model = build_model()
+    compiled = build_controller_stack(model).compiled
+    fastest = fastest_schedule(compiled, GOAL, seconds(model))
+    with_member = run_in_process(model, seed=1)
+    without = run_in_process(model, seed=1, budget=dataclasses.replace(VIRTUAL_BUDGET, retime_tries=0))
+    assert with_member.finished and without.finished, (with_member.reason, without.reason)
+    assert with_member.cycle is not None and without.cycle is not None
+    assert with_member.cycle.cycle <= fastest + 0.5  # the engine's tick and dispatch, no more
+    # the planner's own choice is the slower order here; the member is what makes the difference
+    assert without.cycle.cycle >= 2 * ROBOT_S + OPERATOR_S
+
+
+def _steps(planner: Planner, start: State, names: tuple[str, ...], goals: dict[str, Predicate]) -> list[PlanStep]:
+    """The plan steps of `names`, in that order, as the planner prints them (its own plan has the same steps)."""
+    plan = planner.plan(start, goals, frozenset(), budget=VIRTUAL_BUDGET)
+    assert isinstance(plan, Plan)
+    by_name = {step.transition: step for step in plan.steps}
+    return [by_name[name] for name in names]
+
+
+def _finish(compiled: CompiledModel, plan: Plan, durations: dict[str, float]) -> float:
+    return predicted_finish(order(compiled, plan, Execution.PARTIAL_ORDER), step_seconds(compiled, plan, durations))
+
+
+@pytest.mark.timeout(180)
+async def test_over_zenoh_the_planner_process_sends_the_faster_order_and_the_controller_switches_to_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Hubs and controller as processes: the first plan does job a first; while the robot does its warm-up job the
+    planner process sends the same steps with job b first, checked in time, and the controller takes them."""
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path / "runs"))
+    lines: list[str] = []
+    code = await run_station(Options(config=str(TWO_JOBS), speed=1.0, run_dir=tmp_path, time_limit=60.0),
+                             say=lines.append)
+    output = "\n".join(lines)
+    assert code == 0, output[-3000:]
+    controller_log = (tmp_path / "controller.log").read_text()
+    assert "better plan taken: 11 steps (" in controller_log and "retimed)" in controller_log, controller_log[-3000:]
+    started = [line.split("r: ", 1)[1].split()[0] for line in lines if " now " in line and "r: " in line]
+    assert started.index("do_b") < started.index("do_a"), output
+
+
+def test_the_controller_takes_a_plan_no_shorter_only_when_it_is_predicted_faster() -> None:
+    """`ControlCore.improve`: the rest of a plan under way replaced by as many steps in another order only with a
+    finish estimate that says it ends sooner (by 1 % at least), and only from the state the station is in."""
+    stack = build_controller_stack(build_model())
+    core = stack.control_core(budget=dataclasses.replace(VIRTUAL_BUDGET, retime_tries=0))
+    core.request("Work")
+    core.tick()
+    request = core.plan_request()
+    assert request is not None
+    planner, compiled = stack.planner, stack.compiled
+    slow = planner.revalidate(request.start, _steps(planner, request.start, A_FIRST, request.goals), request.goals)
+    assert slow is not None
+    core.adopt(request, slow)
+    found = retime_plan(planner, compiled, slow, request, seconds(build_model()), core.engine.execution)
+    assert found is not None
+    fast = found.plan
+
+    def predicted(plan: Plan, done: frozenset[int]) -> float:
+        durations = step_seconds(compiled, plan, seconds(build_model()))
+        return predicted_finish(order(compiled, plan, core.engine.execution),
+                                [0.0 if j in done else d for j, d in enumerate(durations)])
+
+    assert not core.improve(request, fast)  # no shorter, and no estimate to tell it faster
+    assert not core.improve(request, fast, lambda plan, done: 1.0)  # as fast as what is left
+    stale = PlanRequest(request.generation - 1, request.start, request.goals, request.disabled)
+    assert not core.improve(stale, fast, predicted)
+    elsewhere = dataclasses.replace(fast, steps=fast.steps[3:], states=fast.states[3:])  # from job b done
+    assert not core.improve(request, elsewhere, predicted)
+    cursor = core.events.log.total
+    assert core.improve(request, fast, predicted)
+    assert core.progress is not None and core.progress.plan.steps == fast.steps
+    taken = core.events.log.since(cursor).events
+    assert [type(e).__name__ for e in taken] == ["FasterPlan"]
+    assert (taken[0].steps, taken[0].seconds, taken[0].instead_of) == (8, 8.0, 11.0)  # type: ignore[union-attr]
