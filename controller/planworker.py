@@ -44,6 +44,7 @@ from .deorder import Execution
 from .planner import NoPlan, Plan, Planner
 from .planner.policy import (
     FIRST_ANSWER_S,
+    FIRST_RETIME_S,
     HOLD_S,
     IMPROVE_S,
     RETIME_LIVE_TRIES,
@@ -69,6 +70,7 @@ class Limits:
     improve_seconds: float = IMPROVE_S
     hold_seconds: float = HOLD_S
     retime_seconds: float = RETIME_S  # then the member that improves the best plan by time (0: none)
+    first_retime_seconds: float = FIRST_RETIME_S  # and the first plan, before it goes out
 
 
 @dataclass(frozen=True)
@@ -101,10 +103,9 @@ class InTime:
         self.execution = timing.execution
         self.seconds = longest_seconds(planner.compiled, timing.durations)
 
-    def faster(self, plan: Plan, request: PlanRequest, requests: Connection, seconds: float) -> Plan | None:
-        """The plan's steps in an order the engine finishes sooner (controller/retime.py) that its own order follows
-        at every timing, found within `seconds`; None if there is none. Raises `CheckStopped` when a newer request
-        waits."""
+    def sooner(self, plan: Plan, request: PlanRequest, requests: Connection, seconds: float) -> Plan | None:
+        """The plan's steps in an order the engine finishes sooner (controller/retime.py), found within `seconds`, not
+        yet checked in time; None if there is none. Raises `CheckStopped` when a newer request waits."""
         if seconds <= 0 or plan.execution is not None:
             return None
         found = retime_plan(self.planner, self.planner.compiled, plan, request, self.seconds, self.execution,
@@ -113,12 +114,18 @@ class InTime:
             if requests.poll():
                 raise CheckStopped
             return None
-        verdict = self.verdict(found.plan, request, requests, stricter=False)
-        if not verdict.passed:  # in the engine's own order: a faster plan is no gain if it needs a stricter one
-            return None
         log.info("plan retimed: %d steps predicted to end in %.1f s instead of %.1f s (%d orders tried)",
                  len(found.plan.steps), found.after_s, found.before_s, found.tried)
-        return verdict.plan
+        return found.plan
+
+    def faster(self, plan: Plan, request: PlanRequest, requests: Connection, seconds: float) -> Plan | None:
+        """`sooner`, and only if the engine's own order follows it at every timing of its effects."""
+        sooner = self.sooner(plan, request, requests, seconds)
+        if sooner is None:
+            return None
+        verdict = self.verdict(sooner, request, requests, stricter=False)
+        # in the engine's own order: a faster plan is no gain if it needs a stricter one
+        return verdict.plan if verdict.passed else None
 
     def verdict(self, plan: Plan, request: PlanRequest, requests: Connection, *, stricter: bool) -> Verdict:
         """Raises `CheckStopped` when a newer request waits."""
@@ -194,6 +201,9 @@ def _first_in_time(plan: Plan | NoPlan | None, note: PlannedAlone | None, reques
     if not isinstance(plan, Plan):
         answers.send(Answer(request.generation, plan, note))
         return
+    # The same steps in a faster order, if a short look finds one: a faster order that comes later finds the
+    # devices already on their way in this one.
+    plan = in_time.sooner(plan, request, requests, limits.first_retime_seconds) or plan
     answers.send(Answer(request.generation, replace(plan, execution=STRICTEST), note))
     verdict = in_time.verdict(plan, request, requests, stricter=True)
     answers.send(Answer(request.generation, None, verdict=verdict))

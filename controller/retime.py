@@ -1,17 +1,18 @@
-"""The portfolio's member that improves a plan by *time*: the same steps in another order that the engine's
-partial order finishes sooner, by the station's durations (pure).
+"""The portfolio's member that improves a plan by *time*: the same steps in another order that the engine finishes
+sooner, by the station's durations (pure).
 
 The other members look for fewer steps; a shortest plan is not the fastest one. Run as a partial order
-(controller/deorder.py), a plan's steps still wait for the steps before them that their guards need and for
-those whose writes they would disturb, and which of those come first is the sequence's choice: the robot's
-move put before the operator's instruction may hold the operator back behind a bolt. This member climbs from
-the plan by moving one step across a dependency on a critical path (one that decides when the plan ends) that
-is not a causal link: the step before it, or the step after it past the other. A move is kept when the engine
-still takes the new sequence to the goals (`revalidate`: the planner's own check with the engine's semantics,
-urgency of automatic transitions and the races the planner knows included) and it ends sooner, or as soon with
-its steps done earlier in all (which lets the climb cross a plateau of several critical paths). It stops at a
-sequence no such move improves, or at its budget: `tries` sequences checked (a count: virtual time stays
-reproducible), a deadline, a stop test.
+(controller/deorder.py) or a trace, a plan's steps still wait for some steps before them (those their guards need,
+those whose writes they would disturb), and which of those come first is the sequence's choice: the robot's job
+the operator needs done last holds the operator back behind the others. This member climbs from the plan along
+its critical path (the dependencies that decide when it ends): a step moved across a dependency that is not a
+causal link (just before the other step, or further back as far as the last step its guard needs), the earlier
+step moved past the later, or a device's round trip (its commands from some values back to the same) swapped with
+the one before it. A move is kept when the engine still takes the new sequence to the goals (`revalidate`: the
+planner's own check with the engine's semantics, urgency of automatic transitions and the races the planner knows
+included) and it ends sooner, or as soon with its steps done earlier in all (which lets the climb cross a plateau
+of several critical paths); the climb goes on from the first such move. It stops at a sequence no move improves,
+or at its budget: `tries` sequences checked (a count: virtual time stays reproducible), a deadline, a stop test.
 
 Predicted as `controller/cycle.py` predicts a run (each effect its longest, commands instant, every step as
 soon as the steps it depends on have happened). The caller checks the result in time (controller/timed_check.py)
