@@ -64,7 +64,7 @@ from .production.settle import ProductSettle
 from .production.throughput import order_line
 from .recording.schema import RunOutcome
 from .requests import Requests
-from .retime import retime_plan
+from .retime import Retimer
 from .timed_check import STRICTEST, Revalidate, TimedCheck, TimingRefusal, Verdict, learn_race, revalidation
 
 NOT_HELD: frozenset[str] = frozenset()
@@ -107,6 +107,7 @@ class ControlLoop:
         self.refusals: list[TimingRefusal] = []  # of the plans answered, the timings that broke them
         self._goals = {name: op.goal for name, op in core.model.operation_by_name.items()}
         self.seconds = dict(seconds) if seconds is not None else effect_seconds(core.model)
+        self.retimer = Retimer(core.planner, self.seconds, core.engine.execution)
         model_shortest = shortest_seconds(core.model)
         self.shortest = (dict(shortest) if shortest is not None else
                          {name: min(s, self.seconds.get(name, s)) for name, s in model_shortest.items()})
@@ -359,8 +360,7 @@ class ControlLoop:
         in the engine's own order at every timing of its effects (controller/timed_check.py); else `plan`."""
         if plan.execution is not None:  # it runs in a stricter order than the one the finish is predicted in
             return plan
-        found = retime_plan(self.core.planner, self.core.compiled, plan, request, self.seconds,
-                            self.core.engine.execution, self.core.budget.retime_tries)
+        found = self.retimer.faster(plan, request, self.core.budget.retime_tries)
         if found is None:
             return plan
         if self.timed is not None:

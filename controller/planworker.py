@@ -54,7 +54,7 @@ from .planner.policy import (
     solve_goals,
 )
 from .preemption import NewerRequest
-from .retime import longest_seconds, retime_plan
+from .retime import Retimer, longest_seconds
 from .timed_check import STRICTEST, CheckStopped, TimedCheck, Verdict, learn_race, revalidation
 
 log = logging.getLogger(__name__)
@@ -100,16 +100,15 @@ class InTime:
         self.planner = planner
         self.check = TimedCheck(planner.compiled, timing.durations, timing.execution)
         self.goals = {name: op.goal for name, op in model.operation_by_name.items()}
-        self.execution = timing.execution
-        self.seconds = longest_seconds(planner.compiled, timing.durations)
+        self.retimer = Retimer(planner, longest_seconds(planner.compiled, timing.durations), timing.execution)
 
     def sooner(self, plan: Plan, request: PlanRequest, requests: Connection, seconds: float) -> Plan | None:
         """The plan's steps in an order the engine finishes sooner (controller/retime.py), found within `seconds`, not
         yet checked in time; None if there is none. Raises `CheckStopped` when a newer request waits."""
         if seconds <= 0 or plan.execution is not None:
             return None
-        found = retime_plan(self.planner, self.planner.compiled, plan, request, self.seconds, self.execution,
-                            RETIME_LIVE_TRIES, deadline=time.perf_counter() + seconds, stop=requests.poll)
+        found = self.retimer.faster(plan, request, RETIME_LIVE_TRIES, deadline=time.perf_counter() + seconds,
+                                    stop=requests.poll)
         if found is None:
             if requests.poll():
                 raise CheckStopped

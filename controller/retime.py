@@ -22,6 +22,7 @@ before it runs, as every plan is.
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -37,6 +38,7 @@ from .planner.plans import PlanStep
 from .planner.portfolio import RETIME_TRIES
 
 EPSILON_S = 1e-6
+RETIMES_KEPT = 256  # plans remembered with what the member found for them
 
 Revalidate = Callable[[State, Sequence[PlanStep]], Plan | None]
 
@@ -77,7 +79,6 @@ def retime(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], ex
     if execution is Execution.SEQUENCE or tries <= 0 or not any(
             step.kind is TransitionKind.EFFECT for step in plan.steps):
         return None
-    start = plan.states[0]
     best = _timed(compiled, plan, seconds, execution)
     first = best.score[0]
     seen = {plan.steps}
@@ -92,7 +93,7 @@ def retime(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], ex
                 break
             seen.add(steps)
             tried += 1
-            candidate = revalidate(start, steps)
+            candidate = _checked(best.plan, steps, revalidate)
             if candidate is None:
                 continue
             timed = _timed(compiled, candidate, seconds, execution)
@@ -106,17 +107,56 @@ def retime(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], ex
                    best.score[0], tried)
 
 
-def retime_plan(planner: Planner, compiled: CompiledModel, plan: Plan, request: PlanRequest,
-                seconds: Mapping[str, float], execution: Execution, tries: int = RETIME_TRIES,
-                deadline: float | None = None, stop: Callable[[], bool] | None = None) -> Retimed | None:
-    """`retime` for the plan answering `request`: each order checked for the goals the plan was found for (the
-    request's, and the finished products it must leave holding)."""
-    goals = {**request.keep, **request.goals}
+class Retimer:
+    """The member for one planner, durations and engine order (the controller's loop, the planner process): what it
+    found for a plan from a start is remembered (the same plans come back order after order, reused by the
+    planner), unless a deadline or a stop cut the search short."""
 
-    def revalidate(start: State, steps: Sequence[PlanStep]) -> Plan | None:
-        return planner.revalidate(start, steps, goals, request.disabled)
+    def __init__(self, planner: Planner, seconds: Mapping[str, float], execution: Execution,
+                 kept: int = RETIMES_KEPT) -> None:
+        self.planner = planner
+        self.seconds = seconds
+        self.execution = execution
+        self.kept = kept
+        self._found: OrderedDict[tuple[object, ...], Retimed | None] = OrderedDict()
 
-    return retime(compiled, plan, seconds, execution, revalidate, tries=tries, deadline=deadline, stop=stop)
+    def faster(self, plan: Plan, request: PlanRequest, tries: int = RETIME_TRIES, deadline: float | None = None,
+               stop: Callable[[], bool] | None = None) -> Retimed | None:
+        """`retime` for the plan answering `request`: each order checked for the goals the plan was found for (the
+        request's, and the finished products it must leave holding)."""
+        goals = {**request.keep, **request.goals}
+        key = (plan.steps, plan.states[0], frozenset(goals), request.disabled, tries,
+               self.planner.timed_races.version)
+        if key in self._found:
+            self._found.move_to_end(key)
+            return self._found[key]
+        cut = False
+
+        def stopping() -> bool:
+            nonlocal cut
+            cut = cut or (deadline is not None and time.perf_counter() > deadline) or (stop is not None and stop())
+            return cut
+
+        def revalidate(start: State, steps: Sequence[PlanStep]) -> Plan | None:
+            return self.planner.revalidate(start, steps, goals, request.disabled)
+
+        found = retime(self.planner.compiled, plan, self.seconds, self.execution, revalidate, tries=tries,
+                       stop=stopping)
+        if not cut:
+            self._found[key] = found
+            while len(self._found) > self.kept:
+                self._found.popitem(last=False)
+        return found
+
+
+def _checked(plan: Plan, steps: tuple[PlanStep, ...], revalidate: Revalidate) -> Plan | None:
+    """`steps` as a plan if the engine takes them to the goals: checked from the first step where they differ from
+    `plan`'s (up to there the states and the checks are the plan's own)."""
+    same = next((k for k, (a, b) in enumerate(zip(plan.steps, steps, strict=True)) if a != b), len(steps))
+    rest = revalidate(plan.states[same], steps[same:])
+    if rest is None:
+        return None
+    return replace(rest, steps=plan.steps[:same] + rest.steps, states=plan.states[:same] + rest.states)
 
 
 def _timed(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], execution: Execution) -> _Timed:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -25,7 +26,7 @@ from controller.planner.policy import VIRTUAL_BUDGET
 from controller.planworker import Limits, PlannerProcess, Timing
 from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.writer import RECORDING_DIR_ENV
-from controller.retime import retime, retime_plan
+from controller.retime import Retimer, retime
 from controller.stack import build_controller_stack
 from deploy.local.inprocess import run_in_process
 from deploy.local.station import Options, run_station
@@ -94,7 +95,7 @@ def test_every_order_the_member_tries_is_checked_by_the_planner() -> None:
     assert retime(compiled, slow, seconds(model), Execution.PARTIAL_ORDER, refuse) is None
     assert checked and all(sorted(c) == sorted(A_FIRST) for c in checked)
     request = PlanRequest(1, start, goals, frozenset())
-    assert retime_plan(planner, compiled, slow, request, seconds(model), Execution.PARTIAL_ORDER, tries=0) is None
+    assert Retimer(planner, seconds(model), Execution.PARTIAL_ORDER).faster(slow, request, tries=0) is None
 
 
 def test_the_controller_runs_the_faster_order_and_ends_at_the_fastest_schedule() -> None:
@@ -194,7 +195,7 @@ def test_the_controller_takes_a_plan_no_shorter_only_when_it_is_predicted_faster
     slow = planner.revalidate(request.start, _steps(planner, request.start, A_FIRST, request.goals), request.goals)
     assert slow is not None
     core.adopt(request, slow)
-    found = retime_plan(planner, compiled, slow, request, seconds(build_model()), core.engine.execution)
+    found = Retimer(planner, seconds(build_model()), core.engine.execution).faster(slow, request)
     assert found is not None
     fast = found.plan
 
@@ -215,3 +216,24 @@ def test_the_controller_takes_a_plan_no_shorter_only_when_it_is_predicted_faster
     taken = core.events.log.since(cursor).events
     assert [type(e).__name__ for e in taken] == ["FasterPlan"]
     assert (taken[0].steps, taken[0].seconds, taken[0].instead_of) == (8, 8.0, 11.0)  # type: ignore[union-attr]
+
+
+def test_what_the_member_found_for_a_plan_is_remembered_unless_its_search_was_cut_short(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    model = build_model()
+    _compiled, planner, goals, slow = job_a_first(model)
+    request = PlanRequest(1, slow.states[0], goals, frozenset())
+    checks: list[int] = []
+    revalidate = planner.revalidate
+
+    def counted(*args: Any, **kwargs: Any) -> Plan | None:
+        checks.append(1)
+        return revalidate(*args, **kwargs)
+
+    monkeypatch.setattr(planner, "revalidate", counted)
+    retimer = Retimer(planner, seconds(model), Execution.PARTIAL_ORDER)
+    assert retimer.faster(slow, request, stop=lambda: True) is None and not checks  # stopped before any order
+    found = retimer.faster(slow, request)
+    assert found is not None and checks
+    checked = len(checks)
+    assert retimer.faster(slow, request) == found and len(checks) == checked  # remembered: nothing checked again

@@ -28,7 +28,7 @@ IMPROVE_S = 10.0  # then A* and the symbolic member, unless a newer request come
 HOLD_S = 0.15  # a warm A* may replace the first answer by a shortest plan this soon
 FIRST_RETIME_S = 0.02  # the first plan is improved by time this long at most before it goes out
 RETIME_S = 2.0  # then the best plan is improved by time (controller/retime.py) for at most this long
-RETIME_LIVE_TRIES = 2_000  # and at most this many orders of its steps checked (a plan of 240 steps: ~3 s)
+RETIME_LIVE_TRIES = 2_000  # and at most this many orders of its steps checked (a plan of 240 steps: ~1 s)
 
 RETRY_FIRST_S = 2.0  # a goal without a plan is tried again after this, then twice as long each time
 RETRY_MAX_S = 60.0
