@@ -124,7 +124,10 @@ def test_a_second_controller_refuses_to_start_naming_the_first_and_outputs_never
     # Nothing of it reached a hub: every mirror since is the first controller's.
     for resource in ("nr", "ur"):
         assert {s.message.mirror.controller for s in states_since(station, resource, began)} == {first.controller}
-    assert station.all_healthy() and not station.dead()
+    # and the first controller goes on with every resource healthy (a snapshot can catch a resource stale for a
+    # moment while the second's start-up starved a loaded machine: one fresh-clone suite in several did)
+    station.wait_for(station.all_healthy, 10.0, "every resource healthy under the first controller")
+    assert not station.dead()
 
 
 def test_a_restarted_controller_is_followed_at_once_in_its_new_epoch_and_the_old_refused(station: Station) -> None:
