@@ -42,13 +42,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mix", metavar="VARIANT:WEIGHT,...", help="with --orders: the variants, repeating")
     parser.add_argument("--execution", type=argument(Execution), choices=list(Execution),
                         help="how a plan's steps wait for each other (default: [controller] execution)")
+    parser.add_argument("--speed", type=positive, default=1.0,
+                        help="the emulated devices run this many times faster than their durations (hubctl up "
+                             "--speed): the plans' predicted finish, the cycle's bound and the timed checks too")
     parser.add_argument("-v", "--verbose", action="store_true")
 
 
 async def run_controller(config_path: str, *, loopback_port: int | None = None, db: str | None = None,
                          fresh: bool = False, mirror_wait_s: float = 5.0, hold: bool = False,
                          certs: str | None = None, record: RunMeta | None = None, orders: int | None = None,
-                         mix: str | None = None, execution: Execution | None = None) -> int:
+                         mix: str | None = None, execution: Execution | None = None, speed: float = 1.0) -> int:
     from common.bus.station_net import security_banner, station_zenoh_config
     from common.bus.zenoh_bus import ZenohBus
     from common.config.security import identity_of
@@ -65,7 +68,7 @@ async def run_controller(config_path: str, *, loopback_port: int | None = None, 
     stop = stop_on_signals()
     async with ZenohBus(zconfig) as bus:
         service = ControllerService(config, model, bus, db=db_path, mirror_wait_s=mirror_wait_s, hold=hold,
-                                    record=record, production=production, execution=execution)
+                                    record=record, production=production, execution=execution, speed=speed)
         log = logging.getLogger("statehub.controller")
         log.info("controller %s: station %s, %d resources, %d operations, plans run in %s; %s",
                  service.controller_id, config.station.name, len(service.hubs_of), len(model.operations),
@@ -86,7 +89,7 @@ def serve(args: argparse.Namespace) -> int:
         return asyncio.run(run_controller(args.config, loopback_port=args.loopback_port, db=args.db,
                                           fresh=args.fresh, mirror_wait_s=args.mirror_wait, hold=args.hold,
                                           certs=args.certs, record=record, orders=args.orders, mix=args.mix,
-                                          execution=args.execution))
+                                          execution=args.execution, speed=args.speed))
     except ControllerConflict as exc:
         print(f"controller: {exc}", file=sys.stderr)
         return EXIT_CONFLICT

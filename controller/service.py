@@ -68,10 +68,14 @@ class ControllerService:
     def __init__(self, config: StationConfig, model: Model, bus: Bus, *, db: str | None = None,
                  mirror_wait_s: float = 5.0, requested: Iterable[str] | None = None,
                  planner_process: bool = True, hold: bool = False, record: RunMeta | None = None,
-                 production: ProductionPlan | None = None, execution: Execution | None = None) -> None:
+                 production: ProductionPlan | None = None, execution: Execution | None = None,
+                 speed: float = 1.0) -> None:
         """`production`: the orders to queue on a fresh start (a book that never had one); `execution`: the order
-        plans run in (default: `[controller] execution` of hubs.toml)."""
+        plans run in (default: `[controller] execution` of hubs.toml); `speed`: the emulated devices run this many
+        times faster than their durations (`hubctl up --speed`), and so do the controller's predictions, bounds and
+        timed checks."""
         self.config = config
+        self.speed = speed
         self.model = model
         self.bus = bus
         self.keys = config.keys
@@ -102,7 +106,8 @@ class ControllerService:
         self.recorder = RunRecorder(self.core, self.clock, sink)
         # The plans' predicted finish and bound at the durations the hubs emulate (the model's under hubs.toml's).
         self.loop = ControlLoop(self.core, self.recorder, self.commanded, self.clock.advance,
-                                effect_seconds(model, config.delays), shortest=shortest_seconds(model, config.delays))
+                                self._at_speed(effect_seconds(model, config.delays)),
+                                shortest=self._at_speed(shortest_seconds(model, config.delays)))
         self.meter = LoopMeter()
         self.ingest = StateIngest(self.loop, self.keys, self.codecs, self.controller_id, self.watchdog,
                                   self.command_hold, self.meter, self._forged)
@@ -120,7 +125,11 @@ class ControllerService:
         """The station's effect durations, from the source the emulator uses (the model's, under hubs.toml's
         `delay`), and the engine's own order: what plans are checked in time against."""
         table = durations_of(self.model, self.config.delays)
-        return Timing(table.keyed(), self.core.engine.execution)
+        return Timing({key: duration.scaled(self.speed) for key, duration in table.keyed().items()},
+                      self.core.engine.execution)
+
+    def _at_speed(self, seconds: dict[str, float]) -> dict[str, float]:
+        return {name: value / self.speed for name, value in seconds.items()}
 
     # --- start-up -------------------------------------------------------------------------
     def _restore(self) -> None:

@@ -213,6 +213,10 @@ async def test_up_runs_five_orders_and_one_a_client_adds_each_operation_once_per
     assert code == 0, output
     assert client == ["added [6, 7]", "cancelled 7"], output
     assert "finished: 6/6 orders" in output and "throughput: 6 engines in" in output, output
+    # At speed 4 the controller's bound is at the devices' speed too: never above the cycle it bounds.
+    cycle_line = next(line for line in output.splitlines() if line.startswith("cycle "))
+    cycle_s, bound_s = (float(cycle_line.split(part, 1)[1].split(" s", 1)[0]) for part in ("cycle ", "bound "))
+    assert 0 < bound_s <= cycle_s, cycle_line
     station, model = load_station(reference_station)
     assert_each_operation_once_per_order(model, _records(reference_station), 6)
     done = check_done_once(run_recordings(str(reference_station), station.station.name, 0.0))

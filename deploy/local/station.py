@@ -106,7 +106,7 @@ def child_commands(config: StationConfig, options: Options, port: int, certs: Pa
     run_dir = options.run_dir
     secured = ["--certs", str(certs)] if certs is not None else []
     controller = [sys.executable, "-m", "controller", "--config", options.config, "--loopback-port", str(port),
-                  "--db", str(run_dir / "controller.sqlite")]
+                  "--db", str(run_dir / "controller.sqlite"), "--speed", str(options.speed)]
     if options.hold:
         controller.append("--hold")
     if options.orders is not None:
