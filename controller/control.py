@@ -52,7 +52,6 @@ class FinishEstimate(Protocol):
     def __call__(self, plan: Plan, done: frozenset[int]) -> float: ...
 
 
-
 class InputListener(Protocol):
     """What a run recording hears from the core: inputs that come from inside the controller (persisted
     values and mirrors loaded, command variables unknown while their resource is held)."""
@@ -424,16 +423,17 @@ class ControlCore:
             kept = self.planner.revalidate(self.state, better.steps[j:], goals, self.disabled)
             if kept is None:
                 continue
+            taken: ShorterPlan | FasterPlan | None = None
             if len(kept.steps) < left:
+                taken = ShorterPlan(len(kept.steps), left, better.stats.method)
+            else:
+                assert finish is not None and left_s is not None
+                kept_s = finish(kept, frozenset())
+                if kept_s < left_s * (1.0 - FASTER_BY):
+                    taken = FasterPlan(len(kept.steps), round(kept_s, 3), round(left_s, 3), better.stats.method)
+            if taken is not None:
                 self._follow(kept)
-                self.events.log.emit(ShorterPlan(len(kept.steps), left, better.stats.method))
-                return True
-            assert finish is not None and left_s is not None
-            kept_s = finish(kept, frozenset())
-            if kept_s < left_s * (1.0 - FASTER_BY):
-                self._follow(kept)
-                self.events.log.emit(FasterPlan(len(kept.steps), round(kept_s, 3), round(left_s, 3),
-                                                better.stats.method))
+                self.events.log.emit(taken)
                 return True
         return False
 

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 from common.model import TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
-from common.model.durations import effect_owner
+from common.model.durations import writer_owner
 from common.model.predicates import And, Const, Eq, In, IsTrue, Ne, Not, Or, Predicate, Ref
 
 MAX_EVENTS = 6_000  # transitions in one window (a reference cycle has about 500)
@@ -256,8 +256,7 @@ def exclusion_bound(compiled: CompiledModel, log: RunLog, seconds: Mapping[str, 
 
 
 def _owner(transition: CompiledTransition | None) -> str | None:
-    """The resource whose variables the transition writes (as `effect_owner` says for effects)."""
-    return effect_owner(transition.source) if transition is not None and transition.source.written() else None
+    return writer_owner(transition.source) if transition is not None else None
 
 
 def _is_command(event: Happened) -> bool:

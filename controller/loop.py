@@ -361,13 +361,8 @@ class ControlLoop:
         if plan.execution is not None:  # it runs in a stricter order than the one the finish is predicted in
             return plan
         found = self.retimer.faster(plan, request, self.core.budget.retime_tries)
-        if found is None:
+        if found is None or self._refusal(request, found.plan, self.core.engine.execution) is not None:
             return plan
-        if self.timed is not None:
-            verdict = self.timed.verdict(found.plan, request.disabled, self._revalidation(request, found.plan),
-                                         own=self.core.engine.execution)
-            if verdict.refusals:
-                return plan
         return found.plan
 
     def _solve(self, request: PlanRequest, *, learnt: bool) -> Plan | NoPlan | None:

@@ -12,7 +12,8 @@ the one before it. A move is kept when the engine still takes the new sequence t
 planner's own check with the engine's semantics, urgency of automatic transitions and the races the planner knows
 included) and it ends sooner, or as soon with its steps done earlier in all (which lets the climb cross a plateau
 of several critical paths); the climb goes on from the first such move. It stops at a sequence no move improves,
-or at its budget: `tries` sequences checked (a count: virtual time stays reproducible), a deadline, a stop test.
+or at its budget: `tries` sequences checked (a count: virtual time stays reproducible), or a stop test (a
+deadline, a newer request).
 
 Predicted as `controller/cycle.py` predicts a run (each effect its longest, commands instant, every step as
 soon as the steps it depends on have happened). The caller checks the result in time (controller/timed_check.py)
@@ -28,7 +29,7 @@ from dataclasses import dataclass, replace
 
 from common.model import Duration, TransitionKind
 from common.model.compiled import CompiledModel, State
-from common.model.durations import duration_in, effect_owner
+from common.model.durations import duration_in, effect_owner, writer_owner
 
 from .control import PlanRequest
 from .cycle import step_finishes, step_seconds
@@ -72,7 +73,7 @@ def longest_seconds(compiled: CompiledModel, durations: Mapping[str, Duration]) 
 
 
 def retime(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], execution: Execution,
-           revalidate: Revalidate, *, tries: int = RETIME_TRIES, deadline: float | None = None,
+           revalidate: Revalidate, *, tries: int = RETIME_TRIES,
            stop: Callable[[], bool] | None = None) -> Retimed | None:
     """A faster order of `plan`'s steps from its start state, or None when no move finds one (or the engine
     runs every plan in sequence, where the order changes nothing)."""
@@ -89,7 +90,7 @@ def retime(compiled: CompiledModel, plan: Plan, seconds: Mapping[str, float], ex
         for steps in _moves(compiled, best):
             if steps in seen:
                 continue
-            if tried >= tries or (deadline is not None and time.perf_counter() > deadline) or (stop and stop()):
+            if tried >= tries or (stop is not None and stop()):
                 break
             seen.add(steps)
             tried += 1
@@ -204,7 +205,7 @@ class _RoundTrips:
     def __init__(self, compiled: CompiledModel, plan: Plan) -> None:
         self.plan = plan
         model = compiled.model
-        self.owner = [_step_owner(compiled, step) for step in plan.steps]
+        self.owner = [writer_owner(compiled.by_name[step.transition].source) for step in plan.steps]
         self.commands = {r.name: [compiled.index[v.path] for v in r.commands] for r in model.resources}
 
     def swapped(self, j: int) -> Iterator[tuple[PlanStep, ...]]:
@@ -234,12 +235,6 @@ class _RoundTrips:
         if others:
             yield (steps[:p] + tuple(steps[k] for k in own) + steps[p:q] + tuple(steps[k] for k in others)
                    + steps[s:])
-
-
-def _step_owner(compiled: CompiledModel, step: PlanStep) -> str | None:
-    """The device a step works on: the resource of the first variable it writes (None: it writes none)."""
-    written = sorted(compiled.by_name[step.transition].source.written())
-    return written[0].split(".", 1)[0] if written else None
 
 
 def _critical_edges(timed: _Timed) -> list[tuple[int, int]]:

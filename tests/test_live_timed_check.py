@@ -21,12 +21,11 @@ from controller.planner import Plan
 from controller.planworker import Answer, Limits, PlannerProcess, Timing
 from controller.recording.hooks import RunRecorder, VirtualClock
 from controller.recording.reader import open_run
-from controller.recording.writer import RECORDING_DIR_ENV
 from controller.stack import build_controller_stack
 from controller.timed_check import STRICTEST, CheckStopped, TimedCheck, Verdict
-from deploy.local.station import Options, run_station
 from deploy.replay.replay import Replayer
 from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
+from tests.timing_stations import up
 from tests.timing_stations.feeder import build_model
 
 FEEDER = "tests.timing_stations.feeder:build_model"
@@ -145,13 +144,8 @@ async def test_hubctl_up_checks_its_plans_in_time_and_ends_with_the_cycle_report
     """The feeder station as processes over Zenoh: its controller's planner process checks the plan in time and
     lets it run in the engine's order; `hubctl up` prints the cycle report at the end; the recording, verdict
     included, replays to the same decisions."""
-    monkeypatch.chdir(ROOT)
-    monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path / "runs"))
-    lines: list[str] = []
-    code = await run_station(Options(config=str(CONFIG), speed=1.0, run_dir=tmp_path, time_limit=120.0),
-                             say=lines.append)
+    lines = await up(CONFIG, tmp_path, monkeypatch, 120.0)
     output = "\n".join(lines)
-    assert code == 0, output[-3000:]
     report = next(i for i, line in enumerate(lines) if line.startswith("cycle "))
     assert "bound" in lines[report] and "cycle/bound" in lines[report], output
     assert {line.split()[0] for line in lines[report + 1:report + 4]} == {"r", "g", "f"}, output

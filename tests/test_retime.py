@@ -25,12 +25,11 @@ from controller.planner.plans import PlanStep
 from controller.planner.policy import VIRTUAL_BUDGET
 from controller.planworker import Limits, PlannerProcess, Timing
 from controller.recording.hooks import RunRecorder, VirtualClock
-from controller.recording.writer import RECORDING_DIR_ENV
 from controller.retime import Retimer, retime
 from controller.stack import build_controller_stack
 from deploy.local.inprocess import run_in_process
-from deploy.local.station import Options, run_station
 from tests.test_causal_chain import fastest_schedule
+from tests.timing_stations import up
 from tests.timing_stations.two_jobs import OPERATOR_S, ROBOT_S, build_model, goal
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -128,13 +127,8 @@ async def test_over_zenoh_the_first_plan_goes_out_in_the_faster_order(tmp_path: 
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """Hubs and controller as processes: the planner process's first plan does job a first, and a short look by the
     member before it goes out finds job b first faster; the robot does b first, the operator beside a."""
-    monkeypatch.chdir(ROOT)
-    monkeypatch.setenv(RECORDING_DIR_ENV, str(tmp_path / "runs"))
-    lines: list[str] = []
-    code = await run_station(Options(config=str(TWO_JOBS), speed=1.0, run_dir=tmp_path, time_limit=60.0),
-                             say=lines.append)
+    lines = await up(TWO_JOBS, tmp_path, monkeypatch, 60.0)
     output = "\n".join(lines)
-    assert code == 0, output[-3000:]
     started = [line.split("r: ", 1)[1].split()[0] for line in lines if " now " in line and "r: " in line]
     assert started.index("do_b") < started.index("do_a"), output
 

@@ -195,12 +195,18 @@ def _ability_effects(model: Model) -> dict[str, Duration]:
     return effects
 
 
+def writer_owner(transition: Transition) -> str | None:
+    """The resource whose variables a transition writes (the first in name order; None: it writes none)."""
+    written = sorted(transition.written())
+    return written[0].split(".", 1)[0] if written else None
+
+
 def effect_owner(transition: Transition) -> str:
     """The resource whose device makes an effect happen: the one whose measured variables it writes."""
-    written = sorted(transition.written())
-    if not written:
+    owner = writer_owner(transition)
+    if owner is None:
         raise ValueError(f"effect {transition.name} writes nothing")
-    return written[0].split(".", 1)[0]
+    return owner
 
 
 def effect_delays(model: Model, configured: Mapping[str, Duration | float] | None = None) -> dict[str, float]:
