@@ -51,6 +51,7 @@ from common.config.modes import DEFAULT_EXECUTION
 from common.model import Kind, TransitionKind, Value
 from common.model.compiled import CompiledModel, CompiledTransition, State
 from common.model.durations import effect_delays
+from common.model.operations import RUNNING
 from common.model.predicates import format_value
 from common.wire.ctl import ReplanCause, ReplanReason
 
@@ -302,6 +303,10 @@ class Engine:
         self.operations = model.operations
         self.op_start = {op.name: compiled.by_name[f"{op.state_path}.start"] for op in model.operations}
         self.op_finish = {op.name: compiled.by_name[f"{op.state_path}.finish"] for op in model.operations}
+        # An operation finishes only while running (its finish guard says so): a tick looks at the state's value
+        # before the whole guard, which was a tenth of a production run with 45 operations mostly idle.
+        self._finishing = tuple((compiled.index[op.state_path], op.name, self.op_finish[op.name])
+                                for op in model.operations)
         self.command_indices = tuple(compiled.index[p] for p in model.paths_of_kind(Kind.COMMAND))
         # Tracking transitions (automatic, writing estimated variables only) are the controller's record
         # of what it observed; they command nothing, so an unhealthy resource does not hold them back.
@@ -363,8 +368,8 @@ class Engine:
 
     def _finish_operations(self, result: TickResult) -> bool:
         progressed = False
-        for name, t in self.op_finish.items():
-            if t.guard(result.state):
+        for index, name, t in self._finishing:
+            if result.state[index] in RUNNING and t.guard(result.state):
                 result.state = t.outcomes[0](result.state)
                 result.fired.append(t.name)
                 result.finished.append(name)
@@ -466,11 +471,12 @@ class Engine:
     @staticmethod
     def _observe(progress: PlanProgress, state: State, now: float | None = None) -> None:
         """Mark effect and automatic steps done once their predecessors are done and their result shows."""
-        changed = True
         done = progress.done
+        left = [j for j in progress.watched if j not in done]
+        changed = True
         while changed:
             changed = False
-            for j in progress.watched:
+            for j in left:
                 if j in done or not progress.observed(j, state):
                     continue
                 if progress.ready(j) or progress.early(j, state):

@@ -21,7 +21,8 @@ import dataclasses
 import enum
 import functools
 import operator
-from collections.abc import Callable, Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
 from common.config.modes import DEFAULT_EXECUTION
@@ -39,6 +40,7 @@ from .planner.reuse import memory_key
 TICKS_AT_ONCE = 100  # engine ticks at one instant before the devices get their turn (as deploy/local/inprocess.py)
 MAX_EVENTS = 20_000  # instants simulated before a plan is given up as never ending
 MAX_KEPT = 200  # plans kept from a state they did not predict (`Revalidate`) in one simulation
+CHECKS_KEPT = 512  # plans' verdicts remembered: in production the same plans come back from the same states
 STOP_EVERY = 64  # instants simulated between two looks at `stop` (a newer request waiting, in the planner process)
 # A plan the engine's own order breaks at some timing runs in the first stricter order none breaks.
 STRICTER = {
@@ -118,17 +120,30 @@ class Verdict:
         return None if self.passed else self.refusals[-1]
 
 
+@dataclass(frozen=True, eq=False)
+class Revalidation:
+    """How the controller keeps a plan from a state it did not predict: `Planner.revalidate` for the plan's goals.
+    Its answers depend on nothing but its arguments and the races the planner has learnt (`key`), so a check that
+    used it can be remembered."""
+
+    planner: Planner
+    goals: Mapping[str, Predicate]
+    disabled: frozenset[str]
+
+    def __call__(self, state: State, steps: Sequence[PlanStep]) -> Plan | None:
+        return self.planner.revalidate(state, steps, self.goals, self.disabled)
+
+    def key(self) -> Hashable:
+        return frozenset(self.goals), self.disabled, self.planner.timed_races.version
+
+
 def revalidation(planner: Planner, operation_goals: Mapping[str, Predicate], plan: Plan,
-                 disabled: frozenset[str]) -> Revalidate | None:
+                 disabled: frozenset[str]) -> Revalidation | None:
     """How the controller keeps `plan` from a state it did not predict (`Planner.revalidate` for its goals)."""
     goals = {name: operation_goals[name] for name in plan.goals if name in operation_goals}
     if not goals:
         return None
-
-    def revalidate(state: State, steps: Sequence[PlanStep]) -> Plan | None:
-        return planner.revalidate(state, steps, goals, disabled)
-
-    return revalidate
+    return Revalidation(planner, goals, disabled)
 
 
 def learn_race(planner: Planner, compiled: CompiledModel, refused: TimingRefusal, goals: Mapping[str, Predicate],
@@ -197,19 +212,31 @@ class _Devices:
         return min(self.due.values(), default=None)
 
 
+def _check_key(plan: Plan, disabled: frozenset[str], execution: Execution,
+               revalidate: Revalidate | None) -> Hashable | None:
+    """What a check's answer depends on; None where that is not known (a revalidation other than the planner's)."""
+    if revalidate is not None and not isinstance(revalidate, Revalidation):
+        return None
+    kept = None if revalidate is None else revalidate.key()
+    return plan.steps, plan.states[0], plan.execution, disabled, execution, kept
+
+
 class TimedCheck:
     """Checks plans against the corner timings of one station's effect durations."""
 
     def __init__(self, compiled: CompiledModel, durations: Mapping[str, Duration],
-                 execution: Execution = DEFAULT_EXECUTION) -> None:
+                 execution: Execution = DEFAULT_EXECUTION, kept: int | None = None) -> None:
         """`durations`: each resource's interval, and the effects' with their ability's own
-        (common/model/durations.py's `DurationTable.keyed()`)."""
+        (common/model/durations.py's `DurationTable.keyed()`); `kept`: verdicts remembered (default
+        `CHECKS_KEPT`; 0: none)."""
         self.compiled = compiled
         self.execution = execution
         self.timings = corner_timings(compiled, durations)
         self.delays = {name: max(t.seconds.get(name, 0.0) for t in self.timings)
                        for name in (e.name for e in compiled.effects)}
         self._engine = Engine(compiled, self.delays, execution)
+        self.kept = CHECKS_KEPT if kept is None else kept
+        self._checks: OrderedDict[Hashable, TimingRefusal | None] = OrderedDict()
 
     def refusal(self, plan: Plan, disabled: frozenset[str] = frozenset(), execution: Execution | None = None,
                 revalidate: Revalidate | None = None, stop: Callable[[], bool] | None = None
@@ -220,12 +247,19 @@ class TimedCheck:
         simulation goes, raises `CheckStopped` when it says so."""
         if not plan.steps:
             return None
-        self._engine.execution = execution or self.execution
-        for timing in self.timings:
-            refused = self._run(plan, disabled, timing, revalidate, stop)
-            if refused is not None:
-                return refused
-        return None
+        execution = execution or self.execution
+        key = _check_key(plan, disabled, execution, revalidate)
+        if key in self._checks:
+            self._checks.move_to_end(key)
+            return self._checks[key]
+        self._engine.execution = execution
+        refused = next((r for r in (self._run(plan, disabled, timing, revalidate, stop) for timing in self.timings)
+                        if r is not None), None)
+        if key is not None and self.kept > 0:  # (a check that `stop` cut short raised: nothing is remembered)
+            self._checks[key] = refused
+            while len(self._checks) > self.kept:
+                self._checks.popitem(last=False)
+        return refused
 
     def verdict(self, plan: Plan, disabled: frozenset[str] = frozenset(), revalidate: Revalidate | None = None,
                 stop: Callable[[], bool] | None = None, *, own: Execution | None = None,

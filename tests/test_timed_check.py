@@ -9,6 +9,7 @@ reference station with a slow operator in partial order.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -20,7 +21,7 @@ from controller.planner import Plan
 from controller.planner.plans import PlanStats
 from controller.planner.policy import VIRTUAL_BUDGET
 from controller.stack import ControllerStack, build_controller_stack
-from controller.timed_check import TimedCheck, TimingFault, corner_timings
+from controller.timed_check import TimedCheck, TimingFault, TimingRefusal, corner_timings
 from deploy.local.inprocess import run_in_process
 from deploy.local.statefile import load_state
 from tests.stations.random_timed_station import WITH_GUARDED, build_random_timed_station_with_shape
@@ -166,3 +167,49 @@ def test_the_satisficing_member_takes_the_effect_a_learnt_race_waits_for() -> No
     assert isinstance(plan, Plan) and plan.stats.method == "greedy", plan.stats
     steps = [step.transition for step in plan.steps]
     assert steps.index("dock.nutrunner_returns.executing.effect") < steps.index("human.tighten_pipe2.enabled")
+
+
+def test_a_verdict_is_remembered_for_the_same_plan_and_races_and_checked_again_once_a_race_is_learnt(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """In production the same plans come back from the same states order after order: the check's answer is
+    remembered, for the planner's revalidation only while the races it learnt are the same, never for a
+    revalidation it cannot tell apart, and never for a check `stop` cut short."""
+    from controller.timed_check import CheckStopped, revalidation
+
+    check, plan, stack = _first_plan(60)
+    simulated: list[str] = []
+    run = check._run
+
+    def counting(*args: Any) -> TimingRefusal | None:
+        simulated.append("run")
+        return run(*args)
+
+    monkeypatch.setattr(check, "_run", counting)  # counts the simulations the check runs
+    goals = {op.name: op.goal for op in stack.compiled.model.operations}
+    keep = revalidation(stack.planner, goals, plan, frozenset())
+    assert keep is not None
+    first = check.refusal(plan, revalidate=keep)
+    runs = len(simulated)
+    assert first is not None and runs >= 1
+    assert check.refusal(plan, revalidate=revalidation(stack.planner, goals, plan, frozenset())) is first
+    assert len(simulated) == runs  # remembered
+    assert check.refusal(plan, execution=Execution.SEQUENCE, revalidate=keep) is not first
+    runs = len(simulated)
+    assert check.refusal(plan, revalidate=lambda state, steps: keep(state, steps)) == first
+    assert len(simulated) > runs  # a revalidation of unknown behaviour: simulated again
+    runs = len(simulated)
+    compiled = stack.compiled
+    assert stack.planner.timed_races.forbid(compiled.by_name[first.transition], compiled.by_name[first.effect])
+    check.refusal(plan, revalidate=keep)
+    assert len(simulated) > runs  # a race learnt: the revalidation may answer otherwise
+    with pytest.raises(CheckStopped):
+        check.refusal(plan, frozenset({"nobody"}), stop=lambda: True)
+    runs = len(simulated)
+    check.refusal(plan, frozenset({"nobody"}))
+    assert len(simulated) > runs  # the stopped check was not remembered
+    unremembering = TimedCheck(compiled, check_durations(stack), kept=0)
+    assert unremembering.refusal(plan, revalidate=keep) == check.refusal(plan, revalidate=keep)
+
+
+def check_durations(stack: ControllerStack) -> dict[str, Duration]:
+    return {e.resource: e.duration for e in durations_of(stack.compiled.model).entries}

@@ -4,7 +4,8 @@
 * `--processes`: `hubctl up --orders 5 --mix full:1,light:1` over real processes (emulated devices, speed 1):
   its engines per hour and cycle time p50/p95/max per variant, as it prints them.
 * in process (always): `--orders` orders of full:1,light:1, seed 1, virtual time: the same figures, and the
-  wall time per order.
+  wall time per order. `--baseline`: the same run again with the timed check remembering no verdict
+  (controller/timed_check.py `CHECKS_KEPT` = 0), and the ratio of the CPU times.
 * `--rss`: the controller's resident memory (VmRSS) in a subprocess running the in-process station, after 10
   and after 200 orders, and their ratio (the issue asks within 10 %).
 * `--long`: 200 orders for each seed of `--seeds`, nominal and with the nutrunner failing a fifth of its
@@ -52,7 +53,7 @@ def over_processes() -> None:
         print("  " + line.strip())
 
 
-def in_process(orders: int) -> None:
+def in_process(orders: int) -> float:
     from common.config.production import ProductionPlan, mixed
     from common.stations import load_model
     from controller.production.throughput import summary_lines
@@ -69,6 +70,19 @@ def in_process(orders: int) -> None:
     assert summary.throughput is not None
     for line in summary_lines(summary.throughput):
         print("  " + line)
+    return cpu
+
+
+def without_remembered_checks(orders: int, cpu: float) -> None:
+    import controller.timed_check as timed_check
+
+    kept, timed_check.CHECKS_KEPT = timed_check.CHECKS_KEPT, 0
+    try:
+        print("baseline: the timed check remembering no verdict")
+        baseline = in_process(orders)
+    finally:
+        timed_check.CHECKS_KEPT = kept
+    print(f"CPU with the timed check's memory / without: {cpu:.1f} / {baseline:.1f} s = {cpu / baseline:.2f}")
 
 
 RSS_CHILD = """
@@ -147,6 +161,7 @@ def main() -> None:
     parser.add_argument("--orders", type=int, default=200)
     parser.add_argument("--fail-rates", default=f"0,{FAIL_RATE}",
                         help="the --long halves to run, comma-separated (default %(default)s)")
+    parser.add_argument("--baseline", action="store_true", help="also the in-process run without remembered checks")
     parser.add_argument("--jobs", type=int, default=max(1, min(2, os.cpu_count() or 1)))
     args = parser.parse_args()
     try:
@@ -155,7 +170,9 @@ def main() -> None:
         parser.error(f"--fail-rates {args.fail_rates!r}: expected numbers separated by commas, e.g. 0,{FAIL_RATE}")
     if args.processes:
         over_processes()
-    in_process(args.orders)
+    cpu = in_process(args.orders)
+    if args.baseline:
+        without_remembered_checks(args.orders, cpu)
     if args.rss:
         rss()
     if args.long:
