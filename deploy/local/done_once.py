@@ -227,18 +227,26 @@ class WorkCount:
         self.begin()
         for record in records:
             self.add(record)
+        self.settle()
 
     def begin(self) -> None:
-        """A controller's recording starts: `add` its records, in order."""
+        """A controller's recording starts: `add` its records, in order, then `settle`."""
         self._values: dict[str, Value] = dict(self.model.initial_state())
         self._by_path: dict[str, list[WorkItem]] = {}
         for item in self.items:
             for path in item.seen.paths():
                 self._by_path.setdefault(path, []).append(item)
         self._ticked = False
+        self._instant: float | None = None  # of the hubs' states taken in so far and not looked at
+        self._touched: dict[str, WorkItem] = {}
 
     def add(self, record: Record) -> None:
         data, values = record.data, self._values
+        # The hubs' states a controller took in at one tick are one instant: the order they are recorded in is
+        # not the order they happened in (a nutrunner's torque gone and the dock seeing it leave, in one tick,
+        # are no moment of torque outside the dock). Their conditions are looked at once all of them are in.
+        if self._instant is not None and not (record.kind is RecordKind.STATE and record.t == self._instant):
+            self.settle()
         if isinstance(data, OrderStarted):
             self.order = data.order
             operations = self.model.variant_by_name[data.variant].requested(self.model.operations)
@@ -249,8 +257,16 @@ class WorkCount:
         elif isinstance(data, StateRecord | CommandRecord | RestoreRecord) and data.values:
             values.update(data.values)
             if self._ticked:
-                self._look({item.name: item for path in data.values for item in self._by_path.get(path, ())}.values(),
-                           values)
+                self._touched.update((item.name, item) for path in data.values for item in self._by_path.get(path, ()))
+                if record.kind is RecordKind.STATE:
+                    self._instant = record.t
+                else:
+                    self.settle()
+
+    def settle(self) -> None:
+        """Look at the conditions the records added since the last look touched."""
+        touched, self._touched, self._instant = self._touched, {}, None
+        self._look(touched.values(), self._values)
 
     def _look(self, items: Iterable[WorkItem], values: Mapping[str, Value]) -> None:
         for item in items:
@@ -307,4 +323,5 @@ class DoneOnceSink:
             self._requested = list(requested)
 
     def close(self) -> None:
+        self.work.settle()
         self.work.finish(self._requested)
