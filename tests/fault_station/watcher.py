@@ -186,6 +186,11 @@ class Watcher:
             self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(15)
 
+    def forget(self) -> None:
+        """Drop everything recorded so far (the station is started again from nothing)."""
+        with self.lock:
+            self.record = Record(states={r: [] for r in self.codecs}, commands={r: [] for r in self.codecs})
+
     # views (copies, taken under the lock)
     def statuses(self) -> list[Seen]:
         with self.lock:
