@@ -6,9 +6,10 @@ import argparse
 import os
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from common.config.hubs_toml import ConfigError, ConfigProblem, StationConfig, load_config, load_station
 from common.config.modes import DEFAULT_EXECUTION, DeviceMode, Execution, argument
@@ -22,6 +23,10 @@ from hubs import main as hub_process
 from hubs.main import parse_failures
 
 from .orders_cli import add_production_options, production_plan, register_orders_command
+
+if TYPE_CHECKING:
+    from common.model import Predicate
+    from controller.planner import Plan, Planner
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -96,6 +101,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from .local.statefile import load_state
 
     model, durations = _model_and_durations(args)
+    execution = load_config(args.config).controller.execution if args.config is not None else DEFAULT_EXECUTION
     stack = build_controller_stack(model)
     compiled = stack.compiled
     goals = {}
@@ -136,7 +142,28 @@ def cmd_plan(args: argparse.Namespace) -> int:
     one_by_one = sum(durations.of_transition(t).max_s for t in effects)
     print(f"predicted makespan: {makespan(earliest_schedule(steps, durations)):.2f} s with each step as early as its "
           f"causal order allows and each effect at its longest ({one_by_one:.2f} s one step after another)")
+    from controller.retime import longest_seconds
+
+    _print_faster_order(stack.planner, result, goals, longest_seconds(compiled, durations.keyed()), execution)
     return 0
+
+
+def _print_faster_order(planner: Planner, plan: Plan, goals: Mapping[str, Predicate], seconds: Mapping[str, float],
+                        execution: Execution) -> None:
+    """The order the controller sends the plan out in when the portfolio's member that improves plans by time
+    (controller/retime.py) finds a faster one in the engine's order (`execution`, hubs.toml's)."""
+    from controller.planner.policy import RETIME_LIVE_TRIES
+    from controller.retime import retime
+
+    found = retime(planner.compiled, plan, seconds, execution,
+                   lambda start, steps: planner.revalidate(start, steps, goals), tries=RETIME_LIVE_TRIES)
+    if found is None:
+        print(f"no faster order of these steps in the engine's {execution} order (controller/retime.py)")
+        return
+    print(f"the controller takes these steps in a faster order, predicted to end at {found.after_s:.2f} s instead of "
+          f"{found.before_s:.2f} s in the engine's {execution} order, each effect at its longest "
+          f"(controller/retime.py, {found.tried} orders checked):")
+    print(found.plan.explain(planner.compiled))
 
 
 DEFAULT_CONFIG = "hubs.toml"

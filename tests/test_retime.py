@@ -231,3 +231,23 @@ def test_what_the_member_found_for_a_plan_is_remembered_unless_its_search_was_cu
     assert found is not None and checks
     checked = len(checks)
     assert retimer.faster(slow, request) == found and len(checks) == checked  # remembered: nothing checked again
+
+
+def test_hubctl_plan_shows_the_order_the_controller_sends_out(capsys: pytest.CaptureFixture[str],
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """`hubctl plan` prints the planner's plan, then the faster order the member finds in the engine's order at the
+    station's durations (job b first, the operator working beside a); on a plan already fastest it says so."""
+    from deploy.cli import main as hubctl
+
+    monkeypatch.chdir(ROOT)
+    config = ROOT / "tests" / "timing_stations" / "two_jobs.toml"
+    assert hubctl(["plan", "--config", str(config), "Work"]) == 0
+    out = capsys.readouterr().out
+    faster = out.index("the controller takes these steps in a faster order")
+    # two_jobs.toml's delays: the robot's jobs 1 s each, the operator's work 1.6 s
+    assert "predicted to end at 2.60 s instead of 3.60 s in the engine's trace order" in out, out
+    planned, sent = out[:faster], out[faster:]
+    assert planned.index("r.do_a.enabled") < planned.index("r.do_b.enabled"), planned
+    assert sent.index("r.do_b.enabled") < sent.index("r.do_a.enabled"), sent
+    assert hubctl(["plan", "--model", "tests.stations.timing:feeder_station", "Place"]) == 0
+    assert "no faster order of these steps in the engine's trace order" in capsys.readouterr().out
