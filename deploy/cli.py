@@ -154,9 +154,10 @@ def _print_faster_order(planner: Planner, plan: Plan, goals: Mapping[str, Predic
     (controller/retime.py) finds a faster one in the engine's order (`execution`, hubs.toml's)."""
     from controller.planner.policy import RETIME_LIVE_TRIES
     from controller.retime import retime
+    from controller.timed_check import Revalidation
 
-    found = retime(planner.compiled, plan, seconds, execution,
-                   lambda start, steps: planner.revalidate(start, steps, goals), tries=RETIME_LIVE_TRIES)
+    found = retime(planner.compiled, plan, seconds, execution, Revalidation(planner, goals, frozenset()),
+                   tries=RETIME_LIVE_TRIES)
     if found is None:
         print(f"no faster order of these steps in the engine's {execution} order (controller/retime.py)")
         return
