@@ -69,7 +69,12 @@ async def hub(hub_process: Callable[..., HubProcess]) -> AsyncIterator[HubUnderT
         process = hub_process(CONFIG, "pi-tool", port, "--speed", "4")
         event = await asyncio.wait_for(alive.get(), 15)
         assert event.alive
-        yield HubUnderTest(bus, process, config.station.name)
+        under = HubUnderTest(bus, process, config.station.name)
+        # The hub declares its liveliness before its command subscribers, and those before it publishes: a
+        # command sent before its first state is seen here can find no subscriber yet and is lost (a fresh
+        # clone's suite under load lost one). A controller resends; these tests send each command once.
+        await under.state_where(lambda s: True, timeout=15)
+        yield under
 
 
 async def test_commands_are_applied_mirrored_and_drive_the_device(hub: HubUnderTest) -> None:
