@@ -37,11 +37,10 @@ from .deorder import Execution, Ordering, order
 from .planner import Plan, Planner
 from .planner.plans import PlanStep
 from .planner.portfolio import RETIME_TRIES
+from .timed_check import Revalidate
 
 EPSILON_S = 1e-6
 RETIMES_KEPT = 256  # plans remembered with what the member found for them
-
-Revalidate = Callable[[State, Sequence[PlanStep]], Plan | None]
 
 
 @dataclass(frozen=True)

@@ -34,17 +34,18 @@ def _fail(message: str, code: int = 2) -> int:
     return code
 
 
-def _model_and_durations(args: argparse.Namespace) -> tuple[Model, DurationTable]:
-    """`--config`: the station's model and its devices' `delay`; else `--model` at its declared durations."""
+def _model_and_durations(args: argparse.Namespace) -> tuple[Model, DurationTable, StationConfig | None]:
+    """`--config`: the station's model, its devices' `delay` and the station; else `--model` at its declared
+    durations (and no station)."""
     from common.resources import durations_of
 
     if args.config is None:
         model = load_model(args.model)
-        return model, durations_of(model)
+        return model, durations_of(model), None
     if args.model != DEFAULT_MODEL:
         raise ConfigError([ConfigProblem(args.config, None, "", "give --model or --config, not both")])
     config, model = load_station(args.config)
-    return model, durations_of(model, config.delays)
+    return model, durations_of(model, config.delays), config
 
 
 def _duration_lines(durations: DurationTable, resources: Iterable[str] | None = None) -> list[str]:
@@ -64,7 +65,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from controller.stack import build_controller_stack
     from controller.timing_hazards import timing_hazards
 
-    model, durations = _model_and_durations(args)
+    model, durations, _ = _model_and_durations(args)
     print(f"model {model.name}: {len(model.resources)} resources, {len(model.variables)} variables, "
           f"{len(model.transitions)} transitions, {len(model.operations)} operations, "
           f"{len(model.specifications)} specifications: valid")
@@ -100,8 +101,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     from .local.statefile import load_state
 
-    model, durations = _model_and_durations(args)
-    execution = load_config(args.config).controller.execution if args.config is not None else DEFAULT_EXECUTION
+    model, durations, config = _model_and_durations(args)
+    execution = config.controller.execution if config is not None else DEFAULT_EXECUTION
     stack = build_controller_stack(model)
     compiled = stack.compiled
     goals = {}
